@@ -1,0 +1,381 @@
+//! The sensor model's parameters: every one named, with its unit in the name and a documented
+//! meaning. A model is plain data (TOML-loadable, `deny_unknown_fields`); optional effect layers
+//! are `None` when switched off.
+
+use serde::{Deserialize, Serialize};
+
+use crate::SimError;
+
+/// The readout electronics of the paper's board: row-column scan, non-inverting amplifier
+/// `Vout = Vref (1 + Rg G)`, one ADC.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Readout {
+    /// Reference voltage on the non-inverting inputs and unselected rows (V).
+    pub vref_v: f64,
+    /// Feedback resistor of each column amplifier (ohm).
+    pub rg_ohm: f64,
+    /// Output rail of the amplifier (V); `Vout` is clipped to it.
+    pub vsat_v: f64,
+    /// ADC reference voltage (V): code = round(max_code * Vout / adc_ref_v).
+    pub adc_ref_v: f64,
+    /// ADC resolution (bits).
+    pub adc_bits: u32,
+    /// White noise on each reading, one standard deviation (ADC counts), before quantization.
+    pub noise_counts: f64,
+}
+
+impl Default for Readout {
+    fn default() -> Self {
+        Readout {
+            vref_v: 0.5,
+            rg_ohm: 5600.0,
+            vsat_v: 5.0,
+            adc_ref_v: 5.0,
+            adc_bits: 10,
+            noise_counts: 0.5,
+        }
+    }
+}
+
+impl Readout {
+    /// Highest ADC code.
+    pub fn max_code(&self) -> f64 {
+        ((1u64 << self.adc_bits) - 1) as f64
+    }
+}
+
+/// The Velostat crossing's static law: `G = G0 + a F^n`, saturated by a series resistance
+/// floor `G_sat = G / (1 + G R_floor)`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Material {
+    /// Unloaded conductance of one crossing, `G0` (microsiemens).
+    pub g0_us: f64,
+    /// Force gain `a` of one crossing (microsiemens per N^n).
+    pub gain_us_per_n: f64,
+    /// Exponent `n` of the power law (dimensionless; 0.9-1.4 on real Velostat).
+    pub exponent: f64,
+    /// Resistance floor that saturates the crossing at high force (ohm).
+    pub r_floor_ohm: f64,
+}
+
+impl Default for Material {
+    fn default() -> Self {
+        Material {
+            g0_us: 25.0,
+            gain_us_per_n: 150.0,
+            exponent: 1.0,
+            r_floor_ohm: 400.0,
+        }
+    }
+}
+
+/// Part-to-part spread, drawn once per seed: lognormal factors (standard deviation of the
+/// natural log) on each crossing's gain and unloaded conductance, and on the whole build.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Spread {
+    /// Per-crossing gain spread (log sd; 0.06 = about +-6 %).
+    pub node_gain_log_sd: f64,
+    /// Per-crossing unloaded-conductance spread (log sd).
+    pub node_g0_log_sd: f64,
+    /// Whole-build gain spread (log sd), one draw per seed.
+    pub build_gain_log_sd: f64,
+    /// Whole-build unloaded-conductance spread (log sd), one draw per seed; builds differ 2-3x.
+    pub build_g0_log_sd: f64,
+}
+
+impl Default for Spread {
+    fn default() -> Self {
+        Spread {
+            node_gain_log_sd: 0.06,
+            node_g0_log_sd: 0.06,
+            build_gain_log_sd: 0.0,
+            build_g0_log_sd: 0.0,
+        }
+    }
+}
+
+/// How the mounting curvature `kappa` changes the crossing. The force gain falls as
+/// `1 / (1 + kappa / kappa_s)`; the unloaded conductance changes by
+/// `G0 (1 + kappa (g1 + q p2(u) + l u) + g2 kappa^2)`, where `u` in (-1, 1) is the crossing's
+/// position across the bend (which sensor axis that is, and its sign, follow the sensor's rotation
+/// and flip) and `p2(u) = u^2 - mean(u^2)`. `g1` differs between face-up and flipped mounting
+/// because the two thread layers are not symmetric.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Curvature {
+    /// Curvature at which force sensitivity has halved, `kappa_s` (1/m).
+    pub sensitivity_kappa_s_m1: f64,
+    /// Uniform baseline change per unit curvature, face up, `g1` (m).
+    pub baseline_g1_m: f64,
+    /// Uniform baseline change per unit curvature, flipped (m).
+    pub baseline_g1_flipped_m: f64,
+    /// Quadratic baseline change `g2` (m^2).
+    pub baseline_g2_m2: f64,
+    /// Weight `q` of the across-bend quadratic pattern (m).
+    pub pattern_quad_m: f64,
+    /// Weight `l` of the across-bend linear pattern (m).
+    pub pattern_lin_m: f64,
+}
+
+impl Default for Curvature {
+    fn default() -> Self {
+        Curvature {
+            sensitivity_kappa_s_m1: 120.0,
+            baseline_g1_m: 0.005,
+            baseline_g1_flipped_m: 0.003,
+            baseline_g2_m2: 0.0,
+            pattern_quad_m: 0.004,
+            pattern_lin_m: 0.002,
+        }
+    }
+}
+
+/// Creep as a Prony series on the local load: `F_eff = F + sum_k c_k lowpass_{tau_k}(F)`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Creep {
+    /// Relative amplitude of each term (fraction of the load).
+    pub amplitudes: Vec<f64>,
+    /// Time constant of each term (s).
+    pub tau_s: Vec<f64>,
+}
+
+impl Default for Creep {
+    fn default() -> Self {
+        Creep {
+            amplitudes: vec![0.03, 0.03],
+            tau_s: vec![3.0, 100.0],
+        }
+    }
+}
+
+/// Rate-independent hysteresis as a Prandtl-Ishlinskii sum of play operators on the local load:
+/// `F_eff = (1 - w) F + w mean_r play_r(F)`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Hysteresis {
+    /// Share of the load that passes through the play operators, `w` (fraction).
+    pub weight: f64,
+    /// Half-widths of the play operators (N of local load).
+    pub thresholds_n: Vec<f64>,
+}
+
+impl Default for Hysteresis {
+    fn default() -> Self {
+        Hysteresis {
+            weight: 0.1,
+            thresholds_n: vec![0.1, 0.3, 0.6, 1.0],
+        }
+    }
+}
+
+/// Thermal drift: conductance times `1 + alpha (T_s - T0)`, where the sensor temperature `T_s`
+/// follows the ambient temperature through a first-order lag.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ThermalDrift {
+    /// Temperature coefficient of conductance (1/K).
+    pub alpha_per_k: f64,
+    /// Thermal time constant of the sensor (s).
+    pub tau_s: f64,
+    /// Temperature at which the model's conductances hold (degC).
+    pub t0_c: f64,
+}
+
+impl Default for ThermalDrift {
+    fn default() -> Self {
+        ThermalDrift {
+            alpha_per_k: -0.003,
+            tau_s: 120.0,
+            t0_c: 25.0,
+        }
+    }
+}
+
+/// Crosstalk of the row-column matrix, solved exactly per row: row switches with on-resistance
+/// `Rs` and column amplifiers with input offsets drawn uniformly in `+-vos_max`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Crosstalk {
+    /// On-resistance of a row switch plus thread (ohm).
+    pub rs_ohm: f64,
+    /// Largest op-amp input offset (V).
+    pub vos_max_v: f64,
+}
+
+impl Default for Crosstalk {
+    fn default() -> Self {
+        Crosstalk {
+            rs_ohm: 80.0,
+            vos_max_v: 0.004,
+        }
+    }
+}
+
+/// Scan skew: node `k` (row-major scan order) is sampled `k * dt` after the frame starts.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ScanSkew {
+    /// Time between two consecutive node samples (s).
+    pub dt_node_s: f64,
+}
+
+impl Default for ScanSkew {
+    fn default() -> Self {
+        ScanSkew { dt_node_s: 0.0005 }
+    }
+}
+
+/// The whole sensor model: geometry, readout, static law, spread, curvature and the optional
+/// effect layers.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SensorModel {
+    /// Number of rows (1..=32).
+    pub rows: usize,
+    /// Number of columns (1..=32).
+    pub cols: usize,
+    pub readout: Readout,
+    pub material: Material,
+    pub spread: Spread,
+    pub curvature: Curvature,
+    /// Effect layers, each `None` (off) unless given.
+    pub creep: Option<Creep>,
+    pub hysteresis: Option<Hysteresis>,
+    pub thermal_drift: Option<ThermalDrift>,
+    pub crosstalk: Option<Crosstalk>,
+    pub scan_skew: Option<ScanSkew>,
+}
+
+impl Default for SensorModel {
+    fn default() -> Self {
+        SensorModel {
+            rows: 4,
+            cols: 4,
+            readout: Readout::default(),
+            material: Material::default(),
+            spread: Spread::default(),
+            curvature: Curvature::default(),
+            creep: None,
+            hysteresis: None,
+            thermal_drift: None,
+            crosstalk: None,
+            scan_skew: None,
+        }
+    }
+}
+
+fn check(ok: bool, what: &str) -> Result<(), SimError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(SimError::Invalid(what.to_string()))
+    }
+}
+
+fn finite_nonneg(x: f64) -> bool {
+    x.is_finite() && x >= 0.0
+}
+
+impl SensorModel {
+    /// Parses a model from TOML and validates it.
+    pub fn from_toml_str(text: &str) -> Result<SensorModel, SimError> {
+        let m: SensorModel = toml::from_str(text).map_err(|e| SimError::Parse(e.to_string()))?;
+        m.validate()?;
+        Ok(m)
+    }
+
+    /// The model as TOML.
+    pub fn to_toml_string(&self) -> String {
+        toml::to_string_pretty(self).unwrap_or_default()
+    }
+
+    /// Checks every parameter's range; the message names the parameter.
+    pub fn validate(&self) -> Result<(), SimError> {
+        check(
+            (1..=32).contains(&self.rows) && (1..=32).contains(&self.cols),
+            "rows and cols must be 1..=32",
+        )?;
+        let r = &self.readout;
+        check(r.vref_v.is_finite() && r.vref_v > 0.0, "readout.vref_v must be > 0")?;
+        check(r.rg_ohm.is_finite() && r.rg_ohm > 0.0, "readout.rg_ohm must be > 0")?;
+        check(r.vsat_v.is_finite() && r.vsat_v > r.vref_v, "readout.vsat_v must exceed vref_v")?;
+        check(r.adc_ref_v.is_finite() && r.adc_ref_v > 0.0, "readout.adc_ref_v must be > 0")?;
+        check((1..=24).contains(&r.adc_bits), "readout.adc_bits must be 1..=24")?;
+        check(finite_nonneg(r.noise_counts), "readout.noise_counts must be >= 0")?;
+        let m = &self.material;
+        check(m.g0_us.is_finite() && m.g0_us > 0.0, "material.g0_us must be > 0")?;
+        check(finite_nonneg(m.gain_us_per_n), "material.gain_us_per_n must be >= 0")?;
+        check(
+            m.exponent.is_finite() && (0.2..=3.0).contains(&m.exponent),
+            "material.exponent must be in 0.2..=3",
+        )?;
+        check(finite_nonneg(m.r_floor_ohm), "material.r_floor_ohm must be >= 0")?;
+        let s = &self.spread;
+        for (v, name) in [
+            (s.node_gain_log_sd, "spread.node_gain_log_sd"),
+            (s.node_g0_log_sd, "spread.node_g0_log_sd"),
+            (s.build_gain_log_sd, "spread.build_gain_log_sd"),
+            (s.build_g0_log_sd, "spread.build_g0_log_sd"),
+        ] {
+            check(finite_nonneg(v) && v <= 2.0, &format!("{name} must be in 0..=2"))?;
+        }
+        let c = &self.curvature;
+        check(
+            c.sensitivity_kappa_s_m1.is_finite() && c.sensitivity_kappa_s_m1 > 0.0,
+            "curvature.sensitivity_kappa_s_m1 must be > 0",
+        )?;
+        for (v, name) in [
+            (c.baseline_g1_m, "curvature.baseline_g1_m"),
+            (c.baseline_g1_flipped_m, "curvature.baseline_g1_flipped_m"),
+            (c.baseline_g2_m2, "curvature.baseline_g2_m2"),
+            (c.pattern_quad_m, "curvature.pattern_quad_m"),
+            (c.pattern_lin_m, "curvature.pattern_lin_m"),
+        ] {
+            check(v.is_finite(), &format!("{name} must be finite"))?;
+        }
+        if let Some(cr) = &self.creep {
+            check(
+                cr.amplitudes.len() == cr.tau_s.len() && !cr.tau_s.is_empty(),
+                "creep.amplitudes and creep.tau_s must have the same, non-zero length",
+            )?;
+            check(
+                cr.amplitudes.iter().all(|a| a.is_finite() && a.abs() < 1.0),
+                "creep.amplitudes must be in (-1, 1)",
+            )?;
+            check(
+                cr.tau_s.iter().all(|t| t.is_finite() && *t > 0.0),
+                "creep.tau_s must be > 0",
+            )?;
+        }
+        if let Some(h) = &self.hysteresis {
+            check(
+                h.weight.is_finite() && (0.0..=1.0).contains(&h.weight),
+                "hysteresis.weight must be in 0..=1",
+            )?;
+            check(
+                !h.thresholds_n.is_empty() && h.thresholds_n.iter().all(|r| finite_nonneg(*r)),
+                "hysteresis.thresholds_n must be non-empty and >= 0",
+            )?;
+        }
+        if let Some(t) = &self.thermal_drift {
+            check(
+                t.alpha_per_k.is_finite() && t.alpha_per_k.abs() < 0.1,
+                "thermal_drift.alpha_per_k must be in (-0.1, 0.1)",
+            )?;
+            check(t.tau_s.is_finite() && t.tau_s > 0.0, "thermal_drift.tau_s must be > 0")?;
+            check(t.t0_c.is_finite(), "thermal_drift.t0_c must be finite")?;
+        }
+        if let Some(x) = &self.crosstalk {
+            check(finite_nonneg(x.rs_ohm), "crosstalk.rs_ohm must be >= 0")?;
+            check(finite_nonneg(x.vos_max_v), "crosstalk.vos_max_v must be >= 0")?;
+        }
+        if let Some(s) = &self.scan_skew {
+            check(finite_nonneg(s.dt_node_s), "scan_skew.dt_node_s must be >= 0")?;
+        }
+        Ok(())
+    }
+}

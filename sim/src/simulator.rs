@@ -1,0 +1,502 @@
+//! The frame generator: evaluates the timeline at each frame time, runs the per-node physics
+//! (static law, spread, curvature, effect layers), the readout and the ADC. Pure and seeded:
+//! the same model, scenario and seed give identical frames.
+
+use crate::model::SensorModel;
+use crate::rng::Rng;
+use crate::scenario::{Contact, Mounting, Scenario, Timeline, Tremor};
+use crate::SimError;
+
+/// RNG sub-streams, so adding draws to one never shifts another.
+const STREAM_SPREAD: u64 = 1;
+const STREAM_NOISE: u64 = 2;
+const STREAM_TREMOR: u64 = 3;
+const STREAM_CROSSTALK: u64 = 4;
+
+/// What the simulator applied to produce one frame (the ground truth of the recording schema).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameTruth {
+    /// Frame time (s since the start of the scenario).
+    pub t_s: f64,
+    /// Total applied force including tremor (N).
+    pub force_n: f64,
+    /// Mounting curvature (1/m).
+    pub curvature_m1: f64,
+    /// Ambient temperature (degC).
+    pub temp_c: f64,
+    /// Trial (mounting) index.
+    pub trial: u32,
+}
+
+/// A seeded simulated sensor running one scenario.
+#[derive(Debug, Clone)]
+pub struct Simulator {
+    model: SensorModel,
+    timeline: Timeline,
+    n: usize,
+    dt_s: f64,
+    frame: u64,
+    node_gain: Vec<f64>,
+    node_g0: Vec<f64>,
+    vos_v: Vec<f64>,
+    noise: Rng,
+    tremor: Option<(Tremor, f64, f64)>,
+    creep: Vec<f64>,
+    hyst: Vec<f64>,
+    t_sensor_c: Option<f64>,
+    contact: Option<(Contact, Vec<f64>)>,
+    mounting: Option<(Mounting, Vec<f64>)>,
+    g_s: Vec<f64>,
+    vout_v: Vec<f64>,
+}
+
+/// Position across the bend, in (-1, 1), of each node for a mounting.
+fn across_bend(rows: usize, cols: usize, m: &Mounting) -> Vec<f64> {
+    let mut u = Vec::with_capacity(rows * cols);
+    for i in 0..rows {
+        for j in 0..cols {
+            let mut x = (j as f64 + 0.5) / cols as f64 * 2.0 - 1.0;
+            let y = (i as f64 + 0.5) / rows as f64 * 2.0 - 1.0;
+            if m.flipped {
+                x = -x;
+            }
+            u.push(match m.rotation_deg {
+                90 => y,
+                180 => -x,
+                270 => -y,
+                _ => x,
+            });
+        }
+    }
+    u
+}
+
+impl Simulator {
+    /// Builds a simulator; validates the model and compiles the scenario.
+    pub fn new(model: &SensorModel, scenario: &Scenario) -> Result<Simulator, SimError> {
+        model.validate()?;
+        let timeline = Timeline::compile(scenario, model.rows, model.cols)?;
+        let n = model.rows * model.cols;
+        let seed = scenario.seed;
+        let mut spread = Rng::new(seed, STREAM_SPREAD);
+        let s = &model.spread;
+        let build_gain = s.build_gain_log_sd * spread.normal();
+        let build_g0 = s.build_g0_log_sd * spread.normal();
+        let mut node_gain = Vec::with_capacity(n);
+        let mut node_g0 = Vec::with_capacity(n);
+        for _ in 0..n {
+            node_gain.push((build_gain + s.node_gain_log_sd * spread.normal()).exp());
+            node_g0.push((build_g0 + s.node_g0_log_sd * spread.normal()).exp());
+        }
+        let mut xt = Rng::new(seed, STREAM_CROSSTALK);
+        let vos_max = model.crosstalk.as_ref().map_or(0.0, |c| c.vos_max_v);
+        let vos_v = (0..model.cols)
+            .map(|_| vos_max * (2.0 * xt.uniform() - 1.0))
+            .collect();
+        let tremor = scenario.tremor.map(|tr| {
+            let mut r = Rng::new(seed, STREAM_TREMOR);
+            let tau = 2.0 * std::f64::consts::PI;
+            (tr, tau * r.uniform(), tau * r.uniform())
+        });
+        let creep_terms = model.creep.as_ref().map_or(0, |c| c.tau_s.len());
+        let hyst_terms = model.hysteresis.as_ref().map_or(0, |h| h.thresholds_n.len());
+        Ok(Simulator {
+            model: model.clone(),
+            timeline,
+            n,
+            dt_s: 1.0 / scenario.rate_hz,
+            frame: 0,
+            node_gain,
+            node_g0,
+            vos_v,
+            noise: Rng::new(seed, STREAM_NOISE),
+            tremor,
+            creep: vec![0.0; n * creep_terms],
+            hyst: vec![0.0; n * hyst_terms],
+            t_sensor_c: None,
+            contact: None,
+            mounting: None,
+            g_s: vec![0.0; n],
+            vout_v: vec![0.0; n],
+        })
+    }
+
+    pub fn rows(&self) -> usize {
+        self.model.rows
+    }
+    pub fn cols(&self) -> usize {
+        self.model.cols
+    }
+    /// Highest ADC code.
+    pub fn full_scale(&self) -> f64 {
+        self.model.readout.max_code()
+    }
+    /// Time between frames (s).
+    pub fn frame_period_s(&self) -> f64 {
+        self.dt_s
+    }
+    /// Number of frames in one pass of the scenario (None when it repeats forever).
+    pub fn frames_in_scenario(&self) -> Option<u64> {
+        if self.timeline.repeats() {
+            None
+        } else {
+            Some((self.timeline.duration_s() / self.dt_s).floor() as u64 + 1)
+        }
+    }
+    /// Index of the next frame.
+    pub fn frame_index(&self) -> u64 {
+        self.frame
+    }
+    pub fn model(&self) -> &SensorModel {
+        &self.model
+    }
+
+    /// Applied total force at time `t` including tremor (N).
+    pub fn applied_force_n(&self, t: f64) -> f64 {
+        let f = self.timeline.force_n(t);
+        match &self.tremor {
+            Some((tr, p1, p2)) if f > 0.0 => {
+                let w = 2.0 * std::f64::consts::PI * tr.freq_hz;
+                let amp = tr.amplitude_n * f.min(1.0);
+                let wave = ((w * t + p1).sin() + 0.5 * (1.37 * w * t + p2).sin()) / 1.5;
+                (f + amp * wave).max(0.0)
+            }
+            _ => f,
+        }
+    }
+
+    /// Force-sensitivity factor at curvature `kappa` (1 when flat).
+    pub fn sensitivity(&self, kappa_m1: f64) -> f64 {
+        1.0 / (1.0 + kappa_m1.max(0.0) / self.model.curvature.sensitivity_kappa_s_m1)
+    }
+
+    /// Unloaded-conductance factor of every node for a mounting (1 when flat).
+    pub fn baseline_factors(&self, m: &Mounting) -> Vec<f64> {
+        let c = &self.model.curvature;
+        let u = across_bend(self.model.rows, self.model.cols, m);
+        let mean_u2 = u.iter().map(|x| x * x).sum::<f64>() / u.len() as f64;
+        let g1 = if m.flipped {
+            c.baseline_g1_flipped_m
+        } else {
+            c.baseline_g1_m
+        };
+        let k = m.curvature_m1;
+        u.iter()
+            .map(|&x| {
+                let shape = g1 + c.pattern_quad_m * (x * x - mean_u2) + c.pattern_lin_m * x;
+                (1.0 + k * shape + c.baseline_g2_m2 * k * k).max(0.05)
+            })
+            .collect()
+    }
+
+    /// Produces the next frame into `out` (ADC codes, row-major, `rows * cols` entries) and
+    /// returns what was applied.
+    pub fn step(&mut self, out: &mut [f32]) -> FrameTruth {
+        let t = self.frame as f64 * self.dt_s;
+        self.frame += 1;
+        let (mounting, trial) = self.timeline.mounting(t);
+        if self.mounting.as_ref().map(|m| m.0) != Some(mounting) {
+            let f = self.baseline_factors(&mounting);
+            self.mounting = Some((mounting, f));
+        }
+        let contact = self.timeline.contact(t);
+        if self.contact.as_ref().map(|c| c.0) != Some(contact) {
+            let w = contact.weights(self.model.rows, self.model.cols);
+            self.contact = Some((contact, w));
+        }
+        let force_n = self.applied_force_n(t);
+        let ambient = self.timeline.temp_c(t);
+        let thermal = match &self.model.thermal_drift {
+            Some(th) => {
+                let ts = match self.t_sensor_c {
+                    None => ambient,
+                    Some(ts) => ts + (ambient - ts) * (1.0 - (-self.dt_s / th.tau_s).exp()),
+                };
+                self.t_sensor_c = Some(ts);
+                1.0 + th.alpha_per_k * (ts - th.t0_c)
+            }
+            None => 1.0,
+        };
+        self.conductances(t, force_n, mounting.curvature_m1, thermal);
+        self.readout();
+        self.quantize(out);
+        FrameTruth {
+            t_s: t,
+            force_n,
+            curvature_m1: mounting.curvature_m1,
+            temp_c: ambient,
+            trial,
+        }
+    }
+
+    fn conductances(&mut self, t: f64, force_n: f64, kappa: f64, thermal: f64) {
+        let mat = &self.model.material;
+        let sens = self.sensitivity(kappa);
+        let skew = self.model.scan_skew.as_ref().map(|s| s.dt_node_s);
+        let decay: Vec<f64> = match &self.model.creep {
+            Some(c) => c
+                .tau_s
+                .iter()
+                .map(|tau| 1.0 - (-self.dt_s / tau).exp())
+                .collect(),
+            None => Vec::new(),
+        };
+        let (weights, base) = match (&self.contact, &self.mounting) {
+            (Some(c), Some(m)) => (&c.1, &m.1),
+            _ => return,
+        };
+        for k in 0..self.n {
+            let f_total = match skew {
+                Some(dt) if dt > 0.0 => self.applied_force_n(t + dt * k as f64),
+                _ => force_n,
+            };
+            let mut f = f_total * weights[k];
+            if let Some(h) = &self.model.hysteresis {
+                let m = h.thresholds_n.len();
+                let states = &mut self.hyst[k * m..(k + 1) * m];
+                let mut sum = 0.0;
+                for (z, r) in states.iter_mut().zip(&h.thresholds_n) {
+                    *z = z.clamp(f - r, f + r);
+                    sum += *z;
+                }
+                f = (1.0 - h.weight) * f + h.weight * sum / m as f64;
+            }
+            if let Some(c) = &self.model.creep {
+                let m = c.tau_s.len();
+                let states = &mut self.creep[k * m..(k + 1) * m];
+                let mut extra = 0.0;
+                for ((x, beta), amp) in states.iter_mut().zip(&decay).zip(&c.amplitudes) {
+                    *x += (f - *x) * beta;
+                    extra += amp * *x;
+                }
+                f += extra;
+            }
+            let load = f.max(0.0).powf(mat.exponent);
+            let g_us = (mat.g0_us * self.node_g0[k] * base[k]
+                + self.node_gain[k] * mat.gain_us_per_n * sens * load)
+                * thermal;
+            let g = (g_us * 1e-6).max(0.0);
+            self.g_s[k] = g / (1.0 + g * mat.r_floor_ohm);
+        }
+    }
+
+    fn readout(&mut self) {
+        let r = &self.model.readout;
+        let (rows, cols) = (self.model.rows, self.model.cols);
+        match &self.model.crosstalk {
+            None => {
+                for (v, g) in self.vout_v.iter_mut().zip(&self.g_s) {
+                    *v = r.vref_v * (1.0 + r.rg_ohm * g);
+                }
+            }
+            Some(x) => {
+                // Exact solve with the columns held at Vref + Vos by their amplifiers: each row
+                // node sits between its switch (0 V when selected, Vref otherwise, through Rs)
+                // and the crossings to every column, so rows solve independently.
+                let mut v_row = vec![0.0; rows];
+                for sel in 0..rows {
+                    for (r_i, vr) in v_row.iter_mut().enumerate() {
+                        let v_src = if r_i == sel { 0.0 } else { r.vref_v };
+                        if x.rs_ohm <= 0.0 {
+                            *vr = v_src;
+                            continue;
+                        }
+                        let mut num = v_src / x.rs_ohm;
+                        let mut den = 1.0 / x.rs_ohm;
+                        for c in 0..cols {
+                            let g = self.g_s[r_i * cols + c];
+                            num += (r.vref_v + self.vos_v[c]) * g;
+                            den += g;
+                        }
+                        *vr = num / den;
+                    }
+                    for c in 0..cols {
+                        let vc = r.vref_v + self.vos_v[c];
+                        let i_c: f64 = (0..rows)
+                            .map(|r_i| (vc - v_row[r_i]) * self.g_s[r_i * cols + c])
+                            .sum();
+                        self.vout_v[sel * cols + c] = vc + r.rg_ohm * i_c;
+                    }
+                }
+            }
+        }
+    }
+
+    fn quantize(&mut self, out: &mut [f32]) {
+        let r = &self.model.readout;
+        let max = r.max_code();
+        for (o, &v) in out.iter_mut().zip(&self.vout_v) {
+            let clipped = v.clamp(0.0, r.vsat_v);
+            let mut code = clipped / r.adc_ref_v * max;
+            if v < r.vsat_v && r.noise_counts > 0.0 {
+                code += r.noise_counts * self.noise.normal();
+            }
+            *o = code.round().clamp(0.0, max) as f32;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenario::Step;
+
+    fn quiet_model() -> SensorModel {
+        let mut m = SensorModel::default();
+        m.readout.noise_counts = 0.0;
+        m
+    }
+
+    fn run(model: &SensorModel, scenario: &Scenario, frames: usize) -> Vec<(FrameTruth, Vec<f32>)> {
+        let mut sim = Simulator::new(model, scenario).expect("valid");
+        let mut out = vec![0.0f32; model.rows * model.cols];
+        (0..frames)
+            .map(|_| {
+                let t = sim.step(&mut out);
+                (t, out.clone())
+            })
+            .collect()
+    }
+
+    fn ramp(curvature: f64) -> Scenario {
+        Scenario {
+            rate_hz: 100.0,
+            mounting: Mounting {
+                curvature_m1: curvature,
+                ..Mounting::default()
+            },
+            steps: vec![Step::Ramp {
+                force_n: 20.0,
+                duration_s: 10.0,
+            }],
+            ..Scenario::default()
+        }
+    }
+
+    fn block_sum(frame: &[f32]) -> f64 {
+        [5, 6, 9, 10].iter().map(|&k| frame[k] as f64).sum()
+    }
+
+    #[test]
+    fn response_is_monotone_in_force() {
+        let frames = run(&quiet_model(), &ramp(0.0), 1000);
+        let mut prev = 0.0;
+        for (truth, f) in &frames {
+            let s = block_sum(f);
+            assert!(s >= prev, "block sum fell at {} N", truth.force_n);
+            prev = s;
+        }
+        let first = block_sum(&frames[0].1);
+        assert!(prev - first > 600.0, "20 N should move the block by hundreds of counts");
+    }
+
+    #[test]
+    fn sensitivity_falls_with_curvature() {
+        let mut deltas = Vec::new();
+        for k in [0.0, 40.0, 80.0] {
+            let frames = run(&quiet_model(), &ramp(k), 501);
+            deltas.push(block_sum(&frames[500].1) - block_sum(&frames[0].1));
+        }
+        assert!(deltas[0] > deltas[1] && deltas[1] > deltas[2], "{deltas:?}");
+        assert!(deltas[2] < 0.8 * deltas[0], "loss at 80 1/m too small: {deltas:?}");
+    }
+
+    #[test]
+    fn baseline_pattern_depends_on_curvature_and_orientation() {
+        let mut m = quiet_model();
+        m.material.g0_us = 200.0; // a high-baseline build makes the pattern easy to read
+        let sim = Simulator::new(&m, &Scenario::default()).expect("valid");
+        let flat = sim.baseline_factors(&Mounting::default());
+        assert!(flat.iter().all(|f| (f - 1.0).abs() < 1e-12));
+        let bent = Mounting {
+            curvature_m1: 60.0,
+            ..Mounting::default()
+        };
+        let a = sim.baseline_factors(&bent);
+        let b = sim.baseline_factors(&Mounting {
+            rotation_deg: 90,
+            ..bent
+        });
+        let c = sim.baseline_factors(&Mounting {
+            flipped: true,
+            ..bent
+        });
+        assert!(a.iter().any(|f| (f - 1.0).abs() > 0.1), "curvature moves the baseline");
+        assert_ne!(a, b, "rotation changes the pattern");
+        assert_ne!(a, c, "flipping changes the pattern");
+        // Along the bend the pattern varies across columns for rotation 0, rows for 90.
+        assert!((a[0] - a[4]).abs() < 1e-12 && (a[0] - a[1]).abs() > 1e-3);
+        assert!((b[0] - b[1]).abs() < 1e-12 && (b[0] - b[4]).abs() > 1e-3);
+        // And it reaches the ADC codes.
+        let mut s = ramp(0.0);
+        s.steps.clear();
+        let flat_codes = run(&m, &s, 1)[0].1.clone();
+        s.mounting.curvature_m1 = 60.0;
+        let bent_codes = run(&m, &s, 1)[0].1.clone();
+        assert_ne!(flat_codes, bent_codes);
+    }
+
+    #[test]
+    fn same_seed_same_frames_other_seed_other_frames() {
+        let mut m = SensorModel::default();
+        m.creep = Some(Default::default());
+        m.hysteresis = Some(Default::default());
+        m.thermal_drift = Some(Default::default());
+        m.crosstalk = Some(Default::default());
+        m.scan_skew = Some(Default::default());
+        let s = Scenario::demo(30.0, 5);
+        let a = run(&m, &s, 800);
+        let b = run(&m, &s, 800);
+        assert_eq!(a, b);
+        let s2 = Scenario::demo(30.0, 6);
+        let c = run(&m, &s2, 800);
+        assert_ne!(a, c);
+    }
+
+    #[test]
+    fn rail_clipping_pins_the_top_code() {
+        let mut m = quiet_model();
+        m.material.r_floor_ohm = 0.0;
+        m.material.gain_us_per_n = 3000.0;
+        let frames = run(&m, &ramp(0.0), 1000);
+        let last = &frames[999].1;
+        assert_eq!(last[5], 1023.0);
+        assert!(last[0] < 200.0, "unloaded nodes stay low");
+    }
+
+    #[test]
+    fn crosstalk_row_part_lowers_pressed_nodes() {
+        let mut plain = quiet_model();
+        plain.material.r_floor_ohm = 0.0;
+        let mut xt = plain.clone();
+        xt.crosstalk = Some(crate::model::Crosstalk {
+            rs_ohm: 120.0,
+            vos_max_v: 0.0,
+        });
+        let a = run(&plain, &ramp(0.0), 1000);
+        let b = run(&xt, &ramp(0.0), 1000);
+        assert!(b[999].1[5] < a[999].1[5], "{} vs {}", b[999].1[5], a[999].1[5]);
+    }
+
+    #[test]
+    fn creep_grows_under_constant_load() {
+        let mut m = quiet_model();
+        m.creep = Some(crate::model::Creep {
+            amplitudes: vec![0.2],
+            tau_s: vec![2.0],
+        });
+        let s = Scenario {
+            rate_hz: 100.0,
+            steps: vec![
+                Step::Ramp {
+                    force_n: 8.0,
+                    duration_s: 0.1,
+                },
+                Step::Rest { duration_s: 10.0 },
+            ],
+            ..Scenario::default()
+        };
+        let frames = run(&m, &s, 1000);
+        assert!(block_sum(&frames[999].1) > block_sum(&frames[20].1) + 20.0);
+    }
+}
