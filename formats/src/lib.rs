@@ -1,0 +1,13 @@
+//! taxel-formats owns every file format taxel reads or writes: the recording CSV schema that all
+//! offline tools share (`csv`), the logger's crash-tolerant record file (`records`), and the one
+//! bincode envelope (magic + format version, trailing bytes rejected) that model files use
+//! (`envelope`). Readers never panic on bad input: errors name the file and the line or byte
+//! offset. Documented in docs/formats.md.
+
+pub mod crc;
+pub mod csv;
+pub mod envelope;
+pub mod records;
+
+pub use csv::{Geometry, Recording, RecordingWriter};
+pub use records::{Record, RecordFileReader, RecordFileWriter};
