@@ -19,7 +19,7 @@ const HEADER_LEN: u64 = 12;
 pub const MAX_RECORD: u32 = 1 << 20;
 
 /// One logged message. Field meanings and units are those of the shared-memory types in
-/// taxel-msgs (`RawFrame`, `CurvatureEstimate`, `ForceSample`, `SimTruth`); arrays hold only
+/// taxel-msgs (`RawFrame`, `CurvatureEstimate`, `ForceSample`, `Reference`); arrays hold only
 /// the meaningful entries.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum Record {
@@ -60,15 +60,15 @@ pub enum Record {
         block_force_n: Vec<f32>,
         block_reading: Vec<f32>,
     },
-    Truth {
+    Reference {
         sensor: String,
         seq: u64,
         t_capture_ns: u64,
-        t_sim_s: f64,
+        t_source_s: f64,
         force_n: f32,
         curvature_m1: f32,
         temp_c: f32,
-        trial: u32,
+        trial: i32,
     },
 }
 
@@ -332,11 +332,11 @@ mod tests {
             w.flush().expect("flush");
             ends.push(w.committed_bytes());
         }
-        w.append(&Record::Truth {
+        w.append(&Record::Reference {
             sensor: "s0".into(),
             seq: 50,
             t_capture_ns: 7,
-            t_sim_s: 0.1,
+            t_source_s: 0.1,
             force_n: 2.0,
             curvature_m1: 40.0,
             temp_c: 25.0,

@@ -75,7 +75,7 @@ pub mod raw_flags {
 
 /// One scan of the array, stamped once at capture.
 #[repr(C)]
-#[derive(Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[type_name("taxel.RawFrame.v1")]
 pub struct RawFrame {
     /// Frame sequence number, consecutive per sensor; a jump means frames were lost.
@@ -135,7 +135,7 @@ pub mod curvature_flags {
 
 /// The mounting curvature and the no-load baseline it was derived from.
 #[repr(C)]
-#[derive(Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[type_name("taxel.CurvatureEstimate.v1")]
 pub struct CurvatureEstimate {
     /// `seq` of the last frame of the no-load window.
@@ -208,7 +208,7 @@ pub mod force_flags {
 
 /// Calibrated forces for one frame.
 #[repr(C)]
-#[derive(Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[type_name("taxel.ForceSample.v1")]
 pub struct ForceSample {
     /// `seq` of the raw frame, copied through.
@@ -264,27 +264,29 @@ impl ForceSample {
     }
 }
 
-/// Ground truth of the simulator for one frame (published by the sim source only), so recordings
-/// of simulated runs carry the reference columns of the recording CSV schema.
+/// Reference values for one frame: the simulator's ground truth, or the reference columns of a
+/// replayed recording (`force_n`, `curvature_m1`, `temp_c`, `trial`), so that recordings of live
+/// runs carry the reference columns of the recording CSV schema. NaN marks a value the source
+/// does not know.
 #[repr(C)]
-#[derive(Clone, Copy, ZeroCopySend)]
-#[type_name("taxel.SimTruth.v1")]
-pub struct SimTruth {
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[type_name("taxel.Reference.v1")]
+pub struct Reference {
     pub seq: u64,
     pub t_capture_ns: u64,
     pub sensor: SensorIdBytes,
-    /// Simulation time of the frame (s).
-    pub t_sim_s: f64,
+    /// Source time of the frame (s): simulation time, or the recording's `t_s`.
+    pub t_source_s: f64,
     /// Total applied force (N).
     pub force_n: f32,
     /// Mounting curvature (1/m).
     pub curvature_m1: f32,
     /// Ambient temperature (degC).
     pub temp_c: f32,
-    /// Trial (mounting) index.
-    pub trial: u32,
+    /// Trial (mounting) index; -1 when unknown.
+    pub trial: i32,
 }
-const _: () = assert!(core::mem::size_of::<SimTruth>() == 8 * 2 + 32 + 8 + 4 * 4);
+const _: () = assert!(core::mem::size_of::<Reference>() == 8 * 2 + 32 + 8 + 4 * 4);
 
 /// The streams of one sensor. Each is a publish-subscribe service paired with an event service
 /// of the same name that is notified after every send.
@@ -296,25 +298,30 @@ pub enum Stream {
     Curvature,
     /// [`ForceSample`]s from the calibrator (history 1).
     Force,
-    /// [`SimTruth`] from the simulator source.
-    Truth,
+    /// [`Reference`] values from the sim or replay source.
+    Reference,
 }
 
 impl Stream {
-    pub const ALL: [Stream; 4] = [Stream::Raw, Stream::Curvature, Stream::Force, Stream::Truth];
+    pub const ALL: [Stream; 4] = [
+        Stream::Raw,
+        Stream::Curvature,
+        Stream::Force,
+        Stream::Reference,
+    ];
     /// Last path component of the service name.
     pub fn suffix(self) -> &'static str {
         match self {
             Stream::Raw => "raw",
             Stream::Curvature => "curvature",
             Stream::Force => "force",
-            Stream::Truth => "truth",
+            Stream::Reference => "reference",
         }
     }
     /// How many past samples a late-joining subscriber receives.
     pub fn history(self) -> usize {
         match self {
-            Stream::Raw | Stream::Truth => 0,
+            Stream::Raw | Stream::Reference => 0,
             Stream::Curvature | Stream::Force => 1,
         }
     }
@@ -353,7 +360,7 @@ mod tests {
             assert_eq!(RawFrame::type_name(), "taxel.RawFrame.v1");
             assert_eq!(ForceSample::type_name(), "taxel.ForceSample.v1");
             assert_eq!(CurvatureEstimate::type_name(), "taxel.CurvatureEstimate.v1");
-            assert_eq!(SimTruth::type_name(), "taxel.SimTruth.v1");
+            assert_eq!(Reference::type_name(), "taxel.Reference.v1");
         }
     }
 }

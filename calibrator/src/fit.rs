@@ -1,0 +1,329 @@
+//! Fitting calibrations from recordings: block readings `S` (baseline-subtracted sums, with the
+//! no-load baseline of the same trial), then a least-squares polynomial in `S` and `C` (faer),
+//! with the declared range taken from the data and narrowed until the model is increasing.
+
+use std::fmt::Write as _;
+
+use faer::prelude::*;
+use faer::Mat;
+use taxel_formats::Recording;
+
+use crate::calibration::{BlockSpec, CalibrationFile, ModelSpec, RangeSpec, Term};
+
+/// Force below which a frame counts as unloaded when estimating a trial's baseline (N).
+pub const NO_LOAD_FORCE_N: f64 = 0.02;
+
+/// One observation for a fit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Observation {
+    /// Block reading (baseline-subtracted sum of counts).
+    pub s: f64,
+    /// Curvature (1/m).
+    pub c: f64,
+    /// Reference force (N).
+    pub f: f64,
+}
+
+/// Why a fit failed.
+#[derive(Debug, thiserror::Error)]
+pub enum FitError {
+    #[error("{path}: needs a force_n column")]
+    NoForce { path: String },
+    #[error("{path}: trial {trial} has no unloaded frames (force_n <= {NO_LOAD_FORCE_N} N) to take a baseline from")]
+    NoBaseline { path: String, trial: i64 },
+    #[error("too few observations ({0}) to fit {1} coefficients")]
+    TooFew(usize, usize),
+    #[error("the fitted model is not increasing in S anywhere in the data range")]
+    NotMonotone,
+}
+
+/// Trial of each sample: the `trial` column, else contiguous runs of one curvature, else 0.
+pub fn trials(rec: &Recording) -> Vec<i64> {
+    if let Some(t) = &rec.trial {
+        return t.clone();
+    }
+    match &rec.curvature_m1 {
+        Some(c) => {
+            let mut out = Vec::with_capacity(c.len());
+            let mut id = 0i64;
+            for i in 0..c.len() {
+                if i > 0 && c[i] != c[i - 1] {
+                    id += 1;
+                }
+                out.push(id);
+            }
+            out
+        }
+        None => vec![0; rec.len()],
+    }
+}
+
+/// Per-sample observations `(S, C, F)` of a block (`nodes` empty = whole array), baseline per
+/// trial from its unloaded frames. Samples without curvature use `default_c`.
+pub fn observations(
+    rec: &Recording,
+    nodes: &[usize],
+    default_c: f64,
+) -> Result<Vec<Observation>, FitError> {
+    let path = rec.path.display().to_string();
+    let force = rec.force_n.as_ref().ok_or(FitError::NoForce { path: path.clone() })?;
+    let trial = trials(rec);
+    let n = rec.n_nodes;
+    let all: Vec<usize> = (0..n).collect();
+    let nodes = if nodes.is_empty() { &all[..] } else { nodes };
+    // Baseline per trial: mean block sum over its unloaded frames.
+    let mut sums: std::collections::BTreeMap<i64, (f64, usize)> = Default::default();
+    let block_sum = |i: usize| -> f64 {
+        let s = rec.sample(i);
+        nodes.iter().map(|&k| s[k]).sum()
+    };
+    for i in 0..rec.len() {
+        if force[i] <= NO_LOAD_FORCE_N {
+            let e = sums.entry(trial[i]).or_default();
+            e.0 += block_sum(i);
+            e.1 += 1;
+        }
+    }
+    let mut out = Vec::with_capacity(rec.len());
+    for i in 0..rec.len() {
+        let &(sum, count) = sums.get(&trial[i]).ok_or(FitError::NoBaseline {
+            path: path.clone(),
+            trial: trial[i],
+        })?;
+        let c = rec.curvature_m1.as_ref().map_or(default_c, |c| c[i]);
+        out.push(Observation {
+            s: block_sum(i) - sum / count as f64,
+            c,
+            f: force[i],
+        });
+    }
+    Ok(out)
+}
+
+/// Goodness of a fit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FitStats {
+    pub n: usize,
+    pub r2: f64,
+    pub rmse_n: f64,
+}
+
+/// The paper's form: every monomial `S^i C^j` with `i >= 1` and `i + j <= degree`, so F = 0 at
+/// S = 0. With `flat`, curvature terms are left out.
+pub fn paper_terms(degree: u32, flat: bool) -> Vec<(u32, u32)> {
+    let mut t = Vec::new();
+    for i in 1..=degree {
+        for j in 0..=(degree - i) {
+            if flat && j > 0 {
+                continue;
+            }
+            t.push((i, j));
+        }
+    }
+    t
+}
+
+/// Least-squares fit of `F = sum coef S^i C^j` over `powers`, on scaled variables for
+/// conditioning.
+pub fn fit_poly(obs: &[Observation], powers: &[(u32, u32)]) -> Result<(Vec<Term>, FitStats), FitError> {
+    let m = obs.len();
+    let p = powers.len();
+    if m < 2 * p {
+        return Err(FitError::TooFew(m, p));
+    }
+    let s_scale = obs.iter().map(|o| o.s.abs()).fold(1e-9, f64::max);
+    let c_scale = obs.iter().map(|o| o.c.abs()).fold(0.0, f64::max).max(1.0);
+    let a = Mat::<f64>::from_fn(m, p, |r, k| {
+        let (i, j) = powers[k];
+        (obs[r].s / s_scale).powi(i as i32) * (obs[r].c / c_scale).powi(j as i32)
+    });
+    let b = Mat::<f64>::from_fn(m, 1, |r, _| obs[r].f);
+    let x = a.col_piv_qr().solve_lstsq(&b);
+    let terms: Vec<Term> = powers
+        .iter()
+        .enumerate()
+        .map(|(k, &(i, j))| Term {
+            s: i,
+            c: j,
+            coef: x[(k, 0)] / (s_scale.powi(i as i32) * c_scale.powi(j as i32)),
+        })
+        .collect();
+    let stats = stats(obs, |s, c| {
+        terms
+            .iter()
+            .map(|t| t.coef * s.powi(t.s as i32) * c.powi(t.c as i32))
+            .sum()
+    });
+    Ok((terms, stats))
+}
+
+/// R^2 and RMSE of `model` on `obs`.
+pub fn stats(obs: &[Observation], model: impl Fn(f64, f64) -> f64) -> FitStats {
+    let n = obs.len();
+    let mean = obs.iter().map(|o| o.f).sum::<f64>() / n.max(1) as f64;
+    let (mut ss_res, mut ss_tot) = (0.0, 0.0);
+    for o in obs {
+        ss_res += (o.f - model(o.s, o.c)).powi(2);
+        ss_tot += (o.f - mean).powi(2);
+    }
+    FitStats {
+        n,
+        r2: if ss_tot > 0.0 { 1.0 - ss_res / ss_tot } else { 0.0 },
+        rmse_n: (ss_res / n.max(1) as f64).sqrt(),
+    }
+}
+
+/// Declared range for a fitted block: S from 0 to the largest observed reading, C over the
+/// observed curvatures; S max lowered, if needed, to where the model stops increasing.
+pub fn fitted_range(obs: &[Observation], terms: &[Term]) -> Result<RangeSpec, FitError> {
+    let s_hi = obs.iter().map(|o| o.s).fold(0.0, f64::max);
+    let c_lo = obs.iter().map(|o| o.c).fold(f64::INFINITY, f64::min);
+    let c_hi = obs.iter().map(|o| o.c).fold(f64::NEG_INFINITY, f64::max);
+    let slope = |s: f64, c: f64| -> f64 {
+        terms
+            .iter()
+            .map(|t| t.coef * t.s as f64 * s.powi(t.s as i32 - 1) * c.powi(t.c as i32))
+            .sum()
+    };
+    let mut s_max = s_hi;
+    for ci in 0..=40 {
+        let c = c_lo + (c_hi - c_lo) * ci as f64 / 40.0;
+        for si in 0..=400 {
+            let s = s_hi * si as f64 / 400.0;
+            if slope(s, c) <= 0.0 {
+                s_max = s_max.min(0.98 * s);
+                break;
+            }
+        }
+    }
+    if s_max <= 0.0 {
+        return Err(FitError::NotMonotone);
+    }
+    Ok(RangeSpec {
+        s: [0.0, s_max.floor()],
+        curvature_m1: [c_lo, c_hi],
+        s_max_by_curvature: Vec::new(),
+    })
+}
+
+fn fmt_f(x: f64) -> String {
+    if x == x.trunc() && x.abs() < 1e15 {
+        format!("{x:.1}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
+fn write_block(out: &mut String, header: &str, b: &BlockSpec) {
+    let _ = writeln!(out, "\n{header}");
+    let _ = writeln!(out, "name = {:?}", b.name);
+    if let Some(nodes) = &b.nodes {
+        let list: Vec<String> = nodes.iter().map(|k| k.to_string()).collect();
+        let _ = writeln!(out, "nodes = [{}]", list.join(", "));
+    }
+    let ModelSpec::Poly { terms } = &b.model;
+    let _ = writeln!(out, "model = {{ form = \"poly\", terms = [");
+    for t in terms {
+        let _ = writeln!(out, "  {{ s = {}, c = {}, coef = {:e} }},", t.s, t.c, t.coef);
+    }
+    let _ = writeln!(out, "] }}");
+    let r = &b.range;
+    let _ = write!(
+        out,
+        "range = {{ s = [{}, {}], curvature_m1 = [{}, {}]",
+        fmt_f(r.s[0]),
+        fmt_f(r.s[1]),
+        fmt_f(r.curvature_m1[0]),
+        fmt_f(r.curvature_m1[1])
+    );
+    if !r.s_max_by_curvature.is_empty() {
+        let pts: Vec<String> = r
+            .s_max_by_curvature
+            .iter()
+            .map(|p| format!("[{}, {}]", fmt_f(p[0]), fmt_f(p[1])))
+            .collect();
+        let _ = write!(out, ", s_max_by_curvature = [{}]", pts.join(", "));
+    }
+    let _ = writeln!(out, " }}");
+}
+
+/// Renders a calibration file in the same hand-editable layout as the shipped ones.
+pub fn to_toml(f: &CalibrationFile, comment: &str) -> String {
+    let mut out = String::new();
+    for line in comment.lines() {
+        let _ = writeln!(out, "# {line}");
+    }
+    let _ = writeln!(out, "id = {:?}", f.id);
+    let _ = writeln!(out, "version = {}", f.version);
+    if !f.description.is_empty() {
+        let _ = writeln!(out, "description = {:?}", f.description);
+    }
+    let _ = writeln!(out, "rows = {}", f.rows);
+    let _ = writeln!(out, "cols = {}", f.cols);
+    let _ = writeln!(out, "default_curvature_m1 = {}", fmt_f(f.default_curvature_m1));
+    write_block(&mut out, "[array]", &f.array);
+    for b in &f.blocks {
+        write_block(&mut out, "[[block]]", b);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calibration::Calibration;
+
+    #[test]
+    fn recovers_a_known_polynomial() {
+        let truth = |s: f64, c: f64| 0.01 * s + 2e-6 * s * s - 5e-5 * s * c;
+        let mut obs = Vec::new();
+        for c in [0.0, 20.0, 40.0, 60.0, 80.0] {
+            for k in 0..50 {
+                let s = k as f64 * 10.0;
+                obs.push(Observation { s, c, f: truth(s, c) });
+            }
+        }
+        let (terms, st) = fit_poly(&obs, &paper_terms(3, false)).expect("fits");
+        assert!(st.r2 > 0.999_999, "{st:?}");
+        assert!(st.rmse_n < 1e-6, "{st:?}");
+        let s1 = terms.iter().find(|t| (t.s, t.c) == (1, 0)).map(|t| t.coef);
+        assert!((s1.unwrap_or(0.0) - 0.01).abs() < 1e-8);
+        let range = fitted_range(&obs, &terms).expect("monotone");
+        assert_eq!(range.curvature_m1, [0.0, 80.0]);
+    }
+
+    #[test]
+    fn flat_form_has_no_curvature_terms() {
+        assert_eq!(paper_terms(3, true), vec![(1, 0), (2, 0), (3, 0)]);
+        assert_eq!(paper_terms(3, false).len(), 6);
+    }
+
+    #[test]
+    fn rendered_file_parses_back() {
+        let f = CalibrationFile {
+            id: "t".into(),
+            version: 2,
+            description: "d".into(),
+            rows: 4,
+            cols: 4,
+            default_curvature_m1: 0.0,
+            array: BlockSpec {
+                name: "array".into(),
+                nodes: None,
+                model: ModelSpec::Poly {
+                    terms: vec![Term { s: 1, c: 0, coef: 0.01 }],
+                },
+                range: RangeSpec {
+                    s: [0.0, 500.0],
+                    curvature_m1: [0.0, 80.0],
+                    s_max_by_curvature: vec![],
+                },
+            },
+            blocks: vec![],
+        };
+        let text = to_toml(&f, "hello\nworld");
+        let back: CalibrationFile = toml::from_str(&text).expect("parses");
+        assert_eq!(back, f);
+        Calibration::from_file("t", &back).expect("valid");
+    }
+}

@@ -1,0 +1,255 @@
+//! The calibrator process loop: wakes on raw frames and curvature estimates (WaitSet), applies
+//! the calibration to every frame, publishes a `ForceSample` per frame, and swaps in a reloaded
+//! calibration between two frames.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use iceoryx2::prelude::*;
+use taxel_msgs::{
+    force_flags, raw_flags, CurvatureEstimate, ForceSample, RawFrame, Stream, MAX_BLOCKS,
+    MAX_NODES,
+};
+use taxel_runtime::ipc::{self, Ipc};
+use taxel_runtime::stats::SeqTracker;
+use taxel_runtime::{now_ns, Shutdown};
+use tracing::{debug, error, info};
+
+use crate::calibration::Calibration;
+use crate::reload::{Loaded, Watcher};
+
+/// Calibrator settings.
+#[derive(Debug, Clone)]
+pub struct Config {
+    pub sensor: String,
+    pub calibration: PathBuf,
+    /// A curvature estimate (baseline) older than this is flagged stale (s).
+    pub curvature_stale_s: f64,
+}
+
+/// What a run did.
+#[derive(Debug, Clone, Default)]
+pub struct Summary {
+    pub frames: u64,
+    pub dropped: u64,
+    pub reloads: u32,
+    pub geometry_mismatches: u64,
+}
+
+/// The pure per-frame computation (shared with offline evaluation).
+#[derive(Debug, Clone)]
+pub struct Calibrator {
+    pub loaded: Arc<Loaded>,
+    baseline: Option<Box<[f32; MAX_NODES]>>,
+    curvature: Option<(f32, u64, u32)>,
+    stale_ns: u64,
+}
+
+impl Calibrator {
+    pub fn new(loaded: Arc<Loaded>, curvature_stale_s: f64) -> Calibrator {
+        Calibrator {
+            loaded,
+            baseline: None,
+            curvature: None,
+            stale_ns: (curvature_stale_s.max(0.0) * 1e9) as u64,
+        }
+    }
+
+    /// Takes a new baseline and curvature.
+    pub fn set_curvature(&mut self, est: &CurvatureEstimate) {
+        let b = self.baseline.get_or_insert_with(|| Box::new([0.0; MAX_NODES]));
+        b.copy_from_slice(&est.baseline);
+        self.curvature = Some((est.curvature_m1, est.t_capture_ns, est.model_version));
+    }
+
+    pub fn calibration(&self) -> &Calibration {
+        &self.loaded.calibration
+    }
+
+    /// Computes the forces of `frame` into `out` (all fields but `t_publish_ns`).
+    pub fn apply(&self, frame: &RawFrame, now_ns: u64, out: &mut ForceSample) {
+        let cal = &self.loaded.calibration;
+        out.seq = frame.seq;
+        out.t_capture_ns = frame.t_capture_ns;
+        out.sensor = frame.sensor;
+        out.cal_version = cal.version;
+        out.cal_generation = self.loaded.generation;
+        out.n_blocks = cal.blocks.len().min(MAX_BLOCKS) as u32;
+        let mut flags = 0;
+        if frame.flags & raw_flags::RAIL != 0 {
+            flags |= force_flags::SATURATED;
+        }
+        if frame.flags & raw_flags::GAP_BEFORE != 0 {
+            flags |= force_flags::GAP_BEFORE;
+        }
+        let c = match self.curvature {
+            Some((c, t, version)) => {
+                if now_ns.saturating_sub(t) > self.stale_ns {
+                    flags |= force_flags::CURVATURE_STALE;
+                }
+                out.curvature_model_version = version;
+                c as f64
+            }
+            None => {
+                flags |= force_flags::CURVATURE_DEFAULTED;
+                out.curvature_model_version = 0;
+                cal.default_curvature_m1
+            }
+        };
+        out.curvature_m1 = c as f32;
+        let n = frame.n_nodes();
+        let Some(base) = &self.baseline else {
+            flags |= force_flags::NO_BASELINE;
+            out.total_force_n = f32::NAN;
+            out.total_reading = f32::NAN;
+            out.block_force_n = [f32::NAN; MAX_BLOCKS];
+            out.block_reading = [f32::NAN; MAX_BLOCKS];
+            out.flags = flags;
+            return;
+        };
+        let reading = |nodes: &[usize]| -> f64 {
+            if nodes.is_empty() {
+                (0..n)
+                    .map(|k| (frame.counts[k] - base[k]) as f64)
+                    .sum()
+            } else {
+                nodes
+                    .iter()
+                    .filter(|&&k| k < n)
+                    .map(|&k| (frame.counts[k] - base[k]) as f64)
+                    .sum()
+            }
+        };
+        let s = reading(&cal.array.nodes);
+        let e = cal.array.evaluate(s, c);
+        out.total_reading = s as f32;
+        out.total_force_n = e.force_n as f32;
+        if e.out_of_range {
+            flags |= force_flags::OUT_OF_RANGE;
+        }
+        for (i, b) in cal.blocks.iter().take(MAX_BLOCKS).enumerate() {
+            let s = reading(&b.nodes);
+            let e = b.evaluate(s, c);
+            out.block_reading[i] = s as f32;
+            out.block_force_n[i] = e.force_n as f32;
+            if e.out_of_range {
+                flags |= force_flags::OUT_OF_RANGE;
+            }
+        }
+        out.flags = flags;
+    }
+}
+
+/// Runs the calibrator until shutdown. The initial calibration was validated by the caller.
+pub fn run(
+    ipc: &Ipc,
+    cfg: &Config,
+    initial: Calibration,
+    shutdown: &Shutdown,
+) -> anyhow::Result<Summary> {
+    let (rows, cols) = (initial.rows, initial.cols);
+    let mut cal = Calibrator::new(
+        Arc::new(Loaded {
+            calibration: initial,
+            generation: 1,
+        }),
+        cfg.curvature_stale_s,
+    );
+    let watcher = Watcher::spawn(cfg.calibration.clone(), rows, cols)?;
+    let raw = ipc.subscriber::<RawFrame>(&cfg.sensor, Stream::Raw)?;
+    let curv = ipc.subscriber::<CurvatureEstimate>(&cfg.sensor, Stream::Curvature)?;
+    let force = ipc.publisher::<ForceSample>(&cfg.sensor, Stream::Force)?;
+    let ws = ipc::waitset()?;
+    let raw_guard = ws
+        .attach_notification(raw.listener())
+        .map_err(|e| anyhow::anyhow!("attach raw listener: {e:?}"))?;
+    let curv_guard = ws
+        .attach_notification(curv.listener())
+        .map_err(|e| anyhow::anyhow!("attach curvature listener: {e:?}"))?;
+    info!(
+        sensor = %cfg.sensor,
+        file = %cfg.calibration.display(),
+        id = %cal.calibration().id,
+        version = cal.calibration().version,
+        "calibrator running"
+    );
+    // A late start still gets the latest estimate through the stream's history.
+    if let Some(est) = curv.latest()? {
+        cal.set_curvature(&est);
+    }
+    let mut out = ForceSample::ZERO;
+    let mut summary = Summary::default();
+    let mut seq = SeqTracker::default();
+    let mut mismatch_reported = false;
+    let mut failure: Option<anyhow::Error> = None;
+    let mut last_report = Instant::now();
+    let mut frames_at_report = 0;
+    while !shutdown.requested() && failure.is_none() {
+        ws.wait_and_process_once_with_timeout(
+            |id| {
+                if id.has_event_from(&curv_guard) {
+                    match curv.latest() {
+                        Ok(Some(est)) => {
+                            debug!(curvature_m1 = est.curvature_m1, "new curvature estimate");
+                            cal.set_curvature(&est);
+                        }
+                        Ok(None) => {}
+                        Err(e) => failure = Some(e.into()),
+                    }
+                }
+                if id.has_event_from(&raw_guard) {
+                    let r = raw.drain(|frame| {
+                        if let Some(l) = watcher.try_next() {
+                            info!(
+                                version = l.calibration.version,
+                                generation = l.generation,
+                                "now serving reloaded calibration"
+                            );
+                            cal.loaded = l;
+                            summary.reloads += 1;
+                        }
+                        if (frame.rows as usize, frame.cols as usize) != (rows, cols) {
+                            summary.geometry_mismatches += 1;
+                            if !mismatch_reported {
+                                error!(
+                                    "sensor streams {} x {} frames but the calibration is for {rows} x {cols}; frames are skipped",
+                                    frame.rows, frame.cols
+                                );
+                                mismatch_reported = true;
+                            }
+                            return;
+                        }
+                        seq.observe(frame.seq);
+                        cal.apply(frame, now_ns(), &mut out);
+                        out.t_publish_ns = now_ns();
+                        if let Err(e) = force.send(&out) {
+                            failure = Some(e.into());
+                        }
+                        summary.frames += 1;
+                    });
+                    if let Err(e) = r {
+                        failure = Some(e.into());
+                    }
+                }
+                CallbackProgression::Continue
+            },
+            ipc::TICK,
+        )
+        .map_err(|e| anyhow::anyhow!("waitset: {e:?}"))?;
+        if last_report.elapsed() >= Duration::from_secs(1) {
+            debug!(
+                fps = (summary.frames - frames_at_report) as f64
+                    / last_report.elapsed().as_secs_f64(),
+                "calibrating"
+            );
+            last_report = Instant::now();
+            frames_at_report = summary.frames;
+        }
+    }
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    summary.dropped = seq.dropped;
+    Ok(summary)
+}

@@ -1,0 +1,163 @@
+//! Command line of the publisher (also embedded as `taxel publisher`).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use taxel_runtime::ipc::Ipc;
+use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
+use taxel_runtime::Shutdown;
+use taxel_sim::{Scenario, SensorModel};
+use tracing::info;
+
+use crate::source::{ReplaySource, SimSource, Source};
+
+/// Publishes raw frames of one sensor from a source.
+#[derive(Debug, Parser)]
+#[command(name = "taxel-publisher", version)]
+pub struct Args {
+    #[command(flatten)]
+    pub common: CommonArgs,
+    /// Sensor id: services are named `taxel/<ID>/raw` and `taxel/<ID>/reference`.
+    #[arg(long, default_value = "s0")]
+    pub sensor: String,
+    /// Stop after this many seconds (default: when the source ends, or on Ctrl-C).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    #[command(subcommand)]
+    pub source: SourceArgs,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum SourceArgs {
+    /// The physics-based simulator (docs/sim.md).
+    Sim(SimArgs),
+    /// Play back a recording CSV (schema in the README), pacing frames by its t_s.
+    Replay(ReplayArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct SimArgs {
+    /// Scenario TOML (default: the built-in demo: presses at 2, 4, 6, 8 N, repeated).
+    #[arg(long)]
+    pub scenario: Option<PathBuf>,
+    /// Sensor model TOML (default: the built-in model).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Seed of every random draw (overrides the scenario's).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Frame rate in Hz (overrides the scenario's).
+    #[arg(long)]
+    pub rate_hz: Option<f64>,
+    /// Curvature of the initial mounting in 1/m (overrides the scenario's).
+    #[arg(long)]
+    pub curvature_m1: Option<f64>,
+    /// Write the frames to this recording CSV (.csv or .csv.gz) as fast as possible instead of
+    /// publishing them (a repeating scenario needs --seconds).
+    #[arg(long)]
+    pub to_csv: Option<PathBuf>,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct ReplayArgs {
+    /// Recording CSV (.csv or .csv.gz).
+    pub file: PathBuf,
+    /// Playback speed relative to the recording's t_s.
+    #[arg(long, default_value_t = 1.0)]
+    pub speed: f64,
+    /// Rows of the array (inferred for a square node count).
+    #[arg(long)]
+    pub rows: Option<usize>,
+    /// Columns of the array.
+    #[arg(long)]
+    pub cols: Option<usize>,
+    /// Full-scale reading, for rail detection (0: unknown).
+    #[arg(long, default_value_t = 0.0)]
+    pub full_scale: f32,
+    /// Start over at the end.
+    #[arg(long = "loop")]
+    pub repeat: bool,
+}
+
+fn read_toml<T>(path: &PathBuf, parse: impl Fn(&str) -> Result<T, taxel_sim::SimError>) -> anyhow::Result<T> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
+    parse(&text).with_context(|| format!("{}", path.display()))
+}
+
+fn sim_source(a: &SimArgs, seconds: Option<f64>) -> anyhow::Result<SimSource> {
+    let model = match &a.model {
+        Some(p) => read_toml(p, SensorModel::from_toml_str)?,
+        None => SensorModel::default(),
+    };
+    let mut scenario = match &a.scenario {
+        Some(p) => read_toml(p, Scenario::from_toml_str)?,
+        None => Scenario::demo(0.0, 1),
+    };
+    if let Some(s) = a.seed {
+        scenario.seed = s;
+    }
+    if let Some(r) = a.rate_hz {
+        scenario.rate_hz = r;
+    }
+    if let Some(c) = a.curvature_m1 {
+        scenario.mounting.curvature_m1 = c;
+    }
+    let frames = match (a.to_csv.is_some(), seconds) {
+        (true, Some(s)) => Some((s * scenario.rate_hz).round() as u64),
+        _ => None,
+    };
+    let src = SimSource::new(&model, &scenario, frames)?;
+    Ok(src)
+}
+
+/// Runs the publisher; the exit code follows the process conventions.
+pub fn main(args: Args) -> ExitCode {
+    init_tracing(&args.common.log);
+    exit_code("taxel-publisher", run(args))
+}
+
+fn run(args: Args) -> Result<(), Failure> {
+    taxel_msgs::sensor_id_bytes(&args.sensor).config_err()?;
+    if let Some(s) = args.seconds {
+        if !(s.is_finite() && s > 0.0) {
+            return Err(Failure::config(anyhow::anyhow!(
+                "--seconds must be a positive number, got {s}"
+            )));
+        }
+    }
+    let mut source: Box<dyn Source> = match &args.source {
+        SourceArgs::Sim(a) => {
+            let mut src = sim_source(a, args.seconds).config_err()?;
+            if let Some(path) = &a.to_csv {
+                if src.frames_hint().is_none() {
+                    return Err(Failure::config(anyhow::anyhow!(
+                        "the scenario repeats forever: give --seconds to bound --to-csv"
+                    )));
+                }
+                let hint = src.frames_hint();
+                let n = crate::run::write_csv(&mut src, path, hint).runtime_err()?;
+                info!("wrote {n} frames to {}", path.display());
+                return Ok(());
+            }
+            Box::new(src)
+        }
+        SourceArgs::Replay(a) => Box::new(
+            ReplaySource::open(&a.file, a.rows, a.cols, a.speed, a.full_scale, a.repeat)
+                .config_err()?,
+        ),
+    };
+    let shutdown = Shutdown::install().runtime_err()?;
+    let ipc = Ipc::open(&args.common.prefix, &format!("publisher-{}", args.sensor)).runtime_err()?;
+    let s = crate::run::publish(&ipc, &args.sensor, source.as_mut(), args.seconds, &shutdown)
+        .runtime_err()?;
+    info!(
+        sensor = %args.sensor,
+        frames = s.frames,
+        seconds = format!("{:.1}", s.seconds),
+        late_resets = s.late_resets,
+        "publisher stopped"
+    );
+    Ok(())
+}

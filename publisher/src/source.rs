@@ -1,0 +1,224 @@
+//! Frame sources. A source fills the readings of the next frame and says when it is due
+//! relative to the start of the stream; the publish loop does the pacing and stamping.
+
+use std::path::Path;
+
+use taxel_formats::Recording;
+use taxel_msgs::source;
+use taxel_sim::{Scenario, SensorModel, Simulator};
+
+/// Reference values that go with a frame (NaN / -1 when unknown).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RefValues {
+    pub t_source_s: f64,
+    pub force_n: f64,
+    pub curvature_m1: f64,
+    pub temp_c: f64,
+    pub trial: i32,
+}
+
+/// One produced frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Produced {
+    /// When the frame is due, in seconds since the stream started (already divided by any
+    /// replay speed).
+    pub due_s: f64,
+    pub reference: Option<RefValues>,
+}
+
+/// A source of frames.
+pub trait Source {
+    fn rows(&self) -> usize;
+    fn cols(&self) -> usize;
+    /// `source` code of `RawFrame`.
+    fn kind(&self) -> u32;
+    /// Full-scale reading (0 if unknown).
+    fn full_scale(&self) -> f32;
+    /// Writes the next frame's `rows * cols` readings; `None` at the end of the source.
+    fn next_frame(&mut self, out: &mut [f32]) -> Option<Produced>;
+}
+
+/// The simulator as a source.
+pub struct SimSource {
+    sim: Simulator,
+    remaining: Option<u64>,
+}
+
+impl SimSource {
+    /// `frames`: stop after this many frames (None: the scenario's length, or forever when it
+    /// repeats).
+    pub fn new(model: &SensorModel, scenario: &Scenario, frames: Option<u64>) -> anyhow::Result<SimSource> {
+        let sim = Simulator::new(model, scenario)?;
+        let remaining = frames.or(sim.frames_in_scenario());
+        Ok(SimSource { sim, remaining })
+    }
+
+    /// Frames left (None: endless).
+    pub fn frames_hint(&self) -> Option<u64> {
+        self.remaining
+    }
+}
+
+impl Source for SimSource {
+    fn rows(&self) -> usize {
+        self.sim.rows()
+    }
+    fn cols(&self) -> usize {
+        self.sim.cols()
+    }
+    fn kind(&self) -> u32 {
+        source::SIM
+    }
+    fn full_scale(&self) -> f32 {
+        self.sim.full_scale() as f32
+    }
+    fn next_frame(&mut self, out: &mut [f32]) -> Option<Produced> {
+        if let Some(r) = self.remaining.as_mut() {
+            if *r == 0 {
+                return None;
+            }
+            *r -= 1;
+        }
+        let t = self.sim.step(out);
+        Some(Produced {
+            due_s: t.t_s,
+            reference: Some(RefValues {
+                t_source_s: t.t_s,
+                force_n: t.force_n,
+                curvature_m1: t.curvature_m1,
+                temp_c: t.temp_c,
+                trial: t.trial as i32,
+            }),
+        })
+    }
+}
+
+/// A recording CSV played back at `speed` times real time (timing from its `t_s`).
+pub struct ReplaySource {
+    rec: Recording,
+    rows: usize,
+    cols: usize,
+    speed: f64,
+    full_scale: f32,
+    next: usize,
+    repeat: bool,
+    pass: u64,
+    offset_s: f64,
+}
+
+impl ReplaySource {
+    pub fn open(
+        path: &Path,
+        rows: Option<usize>,
+        cols: Option<usize>,
+        speed: f64,
+        full_scale: f32,
+        repeat: bool,
+    ) -> anyhow::Result<ReplaySource> {
+        let rec = Recording::read(path)?;
+        let g = rec.geometry(rows, cols)?;
+        anyhow::ensure!(
+            speed.is_finite() && speed > 0.0,
+            "--speed must be a positive number, got {speed}"
+        );
+        for i in 1..rec.len() {
+            anyhow::ensure!(
+                rec.t_s[i] >= rec.t_s[i - 1],
+                "{}: t_s goes backwards at data row {} ({} after {})",
+                path.display(),
+                i + 1,
+                rec.t_s[i],
+                rec.t_s[i - 1]
+            );
+        }
+        Ok(ReplaySource {
+            rows: g.rows,
+            cols: g.cols,
+            speed,
+            full_scale,
+            next: 0,
+            repeat,
+            pass: 0,
+            offset_s: 0.0,
+            rec,
+        })
+    }
+}
+
+impl Source for ReplaySource {
+    fn rows(&self) -> usize {
+        self.rows
+    }
+    fn cols(&self) -> usize {
+        self.cols
+    }
+    fn kind(&self) -> u32 {
+        source::REPLAY
+    }
+    fn full_scale(&self) -> f32 {
+        self.full_scale
+    }
+    fn next_frame(&mut self, out: &mut [f32]) -> Option<Produced> {
+        if self.next >= self.rec.len() {
+            if !self.repeat {
+                return None;
+            }
+            let t = &self.rec.t_s;
+            let span = t[t.len() - 1] - t[0];
+            let step = if t.len() > 1 { span / (t.len() - 1) as f64 } else { 0.01 };
+            self.offset_s += span + step;
+            self.next = 0;
+            self.pass += 1;
+        }
+        let i = self.next;
+        self.next += 1;
+        for (o, v) in out.iter_mut().zip(self.rec.sample(i)) {
+            *o = *v as f32;
+        }
+        let t = self.rec.t_s[i] - self.rec.t_s[0] + self.offset_s;
+        let pick = |c: &Option<Vec<f64>>| c.as_ref().map_or(f64::NAN, |v| v[i]);
+        let has_ref = self.rec.force_n.is_some()
+            || self.rec.curvature_m1.is_some()
+            || self.rec.temp_c.is_some()
+            || self.rec.trial.is_some();
+        Some(Produced {
+            due_s: t / self.speed,
+            reference: has_ref.then(|| RefValues {
+                t_source_s: self.rec.t_s[i],
+                force_n: pick(&self.rec.force_n),
+                curvature_m1: pick(&self.rec.curvature_m1),
+                temp_c: pick(&self.rec.temp_c),
+                trial: self
+                    .rec
+                    .trial
+                    .as_ref()
+                    .map_or(-1, |v| v[i].clamp(i32::MIN as i64, i32::MAX as i64) as i32),
+            }),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn replay_follows_the_file_and_repeats() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("r.csv");
+        std::fs::write(&p, "t_s,n0,force_n\n10,500,0\n10.5,400,1\n11,300,2\n").expect("write");
+        let mut s = ReplaySource::open(&p, None, None, 2.0, 0.0, true).expect("open");
+        let mut out = [0f32; 1];
+        let a = s.next_frame(&mut out).expect("frame");
+        assert_eq!((a.due_s, out[0]), (0.0, 500.0));
+        let b = s.next_frame(&mut out).expect("frame");
+        assert_eq!(b.due_s, 0.25);
+        assert_eq!(b.reference.map(|r| r.force_n), Some(1.0));
+        s.next_frame(&mut out);
+        let d = s.next_frame(&mut out).expect("repeats");
+        assert_eq!((d.due_s, out[0]), (0.75, 500.0));
+        std::fs::write(&p, "t_s,n0\n1,5\n0,5\n").expect("write");
+        let e = ReplaySource::open(&p, None, None, 1.0, 0.0, false).err().expect("backwards");
+        assert!(format!("{e:#}").contains("backwards"), "{e:#}");
+    }
+}

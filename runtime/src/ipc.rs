@@ -1,0 +1,280 @@
+//! iceoryx2 plumbing: one node per process, and per-sensor streams. A stream is a
+//! publish-subscribe service and an event service of the same name (`taxel/<sensor>/<stream>`);
+//! the publisher notifies the event after every send, so subscribers sleep in a WaitSet until
+//! data arrives. Every process opens a stream with the same quality-of-service settings (safe
+//! overflow on, so a stalled subscriber never blocks a publisher; history per stream).
+
+use std::fmt::Debug;
+use std::time::Duration;
+
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use taxel_msgs::{service_name, Stream};
+
+/// Why an iceoryx2 operation failed (the message names the service).
+#[derive(Debug, thiserror::Error)]
+#[error("{what}: {detail}")]
+pub struct IpcError {
+    pub what: String,
+    pub detail: String,
+}
+
+fn err(what: impl Into<String>, e: impl Debug) -> IpcError {
+    IpcError {
+        what: what.into(),
+        detail: format!("{e:?}"),
+    }
+}
+
+/// Samples a subscriber can hold before the oldest is overwritten.
+pub const SUBSCRIBER_BUFFER: usize = 64;
+/// Upper bound of subscribers per stream (control loop, logger, latency probes, monitors, ...).
+pub const MAX_SUBSCRIBERS: usize = 16;
+/// Publishers per stream: 2, so a restarted process can connect before the old one is cleaned.
+pub const MAX_PUBLISHERS: usize = 2;
+/// Nodes per service.
+pub const MAX_NODES: usize = 32;
+
+/// The iceoryx2 configuration for a service prefix.
+pub fn config(prefix: &str) -> Result<Config, IpcError> {
+    let mut config = Config::default();
+    config.global.prefix =
+        FileName::new(prefix.as_bytes()).map_err(|e| err(format!("prefix {prefix:?}"), e))?;
+    Ok(config)
+}
+
+/// A process's iceoryx2 node.
+pub struct Ipc {
+    pub node: Node<ipc::Service>,
+    pub config: Config,
+}
+
+impl Ipc {
+    /// Creates the node `name` under `prefix`, with iceoryx2's signal handling disabled (the
+    /// process's shutdown flag owns the signals). Stale resources of dead nodes are cleaned up.
+    pub fn open(prefix: &str, name: &str) -> Result<Ipc, IpcError> {
+        let config = config(prefix)?;
+        let node_name =
+            NodeName::new(name).map_err(|e| err(format!("node name {name:?}"), e))?;
+        let node = NodeBuilder::new()
+            .name(&node_name)
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(|e| err(format!("creating node {name}"), e))?;
+        Ok(Ipc { node, config })
+    }
+
+    fn services<T: Debug + ZeroCopySend + 'static>(
+        &self,
+        sensor: &str,
+        stream: Stream,
+    ) -> Result<
+        (
+            iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>,
+            iceoryx2::service::port_factory::event::PortFactory<ipc::Service>,
+        ),
+        IpcError,
+    > {
+        let name = service_name(sensor, stream);
+        let sname: ServiceName = name
+            .as_str()
+            .try_into()
+            .map_err(|e| err(format!("service name {name}"), e))?;
+        let ps = self
+            .node
+            .service_builder(&sname)
+            .publish_subscribe::<T>()
+            .history_size(stream.history())
+            .subscriber_max_buffer_size(SUBSCRIBER_BUFFER)
+            .enable_safe_overflow(true)
+            .max_publishers(MAX_PUBLISHERS)
+            .max_subscribers(MAX_SUBSCRIBERS)
+            .max_nodes(MAX_NODES)
+            .open_or_create()
+            .map_err(|e| err(format!("opening {name}"), e))?;
+        let ev = self
+            .node
+            .service_builder(&sname)
+            .event()
+            .max_nodes(MAX_NODES)
+            .max_listeners(MAX_SUBSCRIBERS)
+            .max_notifiers(MAX_PUBLISHERS * 2)
+            .open_or_create()
+            .map_err(|e| err(format!("opening event {name}"), e))?;
+        Ok((ps, ev))
+    }
+
+    /// Publisher side of a stream.
+    pub fn publisher<T: Debug + ZeroCopySend + Copy + 'static>(
+        &self,
+        sensor: &str,
+        stream: Stream,
+    ) -> Result<StreamPublisher<T>, IpcError> {
+        let (ps, ev) = self.services::<T>(sensor, stream)?;
+        let name = service_name(sensor, stream);
+        let publisher = ps
+            .publisher_builder()
+            .max_loaned_samples(2)
+            .create()
+            .map_err(|e| err(format!("publisher on {name}"), e))?;
+        let notifier = ev
+            .notifier_builder()
+            .create()
+            .map_err(|e| err(format!("notifier on {name}"), e))?;
+        Ok(StreamPublisher {
+            publisher,
+            notifier,
+            name,
+        })
+    }
+
+    /// Subscriber side of a stream.
+    pub fn subscriber<T: Debug + ZeroCopySend + Copy + 'static>(
+        &self,
+        sensor: &str,
+        stream: Stream,
+    ) -> Result<StreamSubscriber<T>, IpcError> {
+        let (ps, ev) = self.services::<T>(sensor, stream)?;
+        let name = service_name(sensor, stream);
+        let subscriber = ps
+            .subscriber_builder()
+            .buffer_size(SUBSCRIBER_BUFFER)
+            .create()
+            .map_err(|e| err(format!("subscriber on {name}"), e))?;
+        let listener = ev
+            .listener_builder()
+            .create()
+            .map_err(|e| err(format!("listener on {name}"), e))?;
+        Ok(StreamSubscriber {
+            subscriber,
+            listener,
+            name,
+        })
+    }
+}
+
+/// Sending end of a stream.
+pub struct StreamPublisher<T: Debug + ZeroCopySend + 'static> {
+    publisher: Publisher<ipc::Service, T, ()>,
+    notifier: Notifier<ipc::Service>,
+    name: String,
+}
+
+impl<T: Debug + ZeroCopySend + Copy + 'static> StreamPublisher<T> {
+    /// Copies `value` into a shared-memory sample, sends it and wakes the subscribers.
+    /// Returns the number of subscribers reached.
+    pub fn send(&self, value: &T) -> Result<usize, IpcError> {
+        let sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(|e| err(format!("loan on {}", self.name), e))?;
+        let n = sample
+            .write_payload(*value)
+            .send()
+            .map_err(|e| err(format!("send on {}", self.name), e))?;
+        self.notifier
+            .notify()
+            .map_err(|e| err(format!("notify on {}", self.name), e))?;
+        Ok(n)
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+}
+
+/// Receiving end of a stream.
+pub struct StreamSubscriber<T: Debug + ZeroCopySend + 'static> {
+    subscriber: Subscriber<ipc::Service, T, ()>,
+    listener: Listener<ipc::Service>,
+    name: String,
+}
+
+impl<T: Debug + ZeroCopySend + Copy + 'static> StreamSubscriber<T> {
+    /// The listener to attach to a WaitSet.
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+
+    /// Clears pending wake-ups and hands every waiting sample to `f`, oldest first. Returns
+    /// how many samples were handled.
+    pub fn drain(&self, mut f: impl FnMut(&T)) -> Result<usize, IpcError> {
+        self.listener
+            .try_wait(|_| {})
+            .map_err(|e| err(format!("listener on {}", self.name), e))?;
+        let mut n = 0;
+        loop {
+            match self.subscriber.receive() {
+                Ok(Some(sample)) => {
+                    f(sample.payload());
+                    n += 1;
+                }
+                Ok(None) => return Ok(n),
+                Err(e) => return Err(err(format!("receive on {}", self.name), e)),
+            }
+        }
+    }
+
+    /// Takes the newest waiting sample, dropping older ones (for "latest value" streams).
+    pub fn latest(&self) -> Result<Option<T>, IpcError> {
+        let mut last = None;
+        self.drain(|v| last = Some(*v))?;
+        Ok(last)
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+}
+
+/// A WaitSet with iceoryx2's signal handling disabled.
+pub fn waitset() -> Result<WaitSet<ipc::Service>, IpcError> {
+    WaitSetBuilder::new()
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .map_err(|e| err("creating waitset", e))
+}
+
+/// How often a waiting loop wakes to look at its shutdown flag.
+pub const TICK: Duration = Duration::from_millis(100);
+
+/// Lists dead nodes under `prefix` and removes their stale resources; returns how many were
+/// cleaned.
+pub fn clean_dead_nodes(prefix: &str) -> Result<usize, IpcError> {
+    let config = config(prefix)?;
+    let mut dead = Vec::new();
+    Node::<ipc::Service>::list(&config, |state| {
+        if let NodeState::Dead(v) = state {
+            dead.push(v);
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| err("listing nodes", e))?;
+    let mut cleaned = 0;
+    for v in dead {
+        if v.try_remove_stale_resources().is_ok() {
+            cleaned += 1;
+        }
+    }
+    Ok(cleaned)
+}
+
+/// Counts the nodes under `prefix` that are alive and dead.
+pub fn count_nodes(prefix: &str) -> Result<(usize, usize), IpcError> {
+    let config = config(prefix)?;
+    let (mut alive, mut dead) = (0, 0);
+    Node::<ipc::Service>::list(&config, |state| {
+        match state {
+            NodeState::Alive(_) => alive += 1,
+            NodeState::Dead(_) => dead += 1,
+            _ => {}
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| err("listing nodes", e))?;
+    Ok((alive, dead))
+}

@@ -1,0 +1,42 @@
+//! Small helpers for the per-second statistics every process reports: a sample-age histogram
+//! (HdrHistogram-free, fixed log buckets, no allocation on record) and a sequence-gap counter.
+
+/// Counts frames lost from jumps in a per-sensor sequence number.
+#[derive(Debug, Clone, Default)]
+pub struct SeqTracker {
+    last: Option<u64>,
+    /// Frames missing between received ones.
+    pub dropped: u64,
+    /// Frames received.
+    pub received: u64,
+}
+
+impl SeqTracker {
+    /// Records `seq`; returns how many frames were skipped before it.
+    pub fn observe(&mut self, seq: u64) -> u64 {
+        self.received += 1;
+        let gap = match self.last {
+            Some(l) if seq > l + 1 => seq - l - 1,
+            _ => 0,
+        };
+        self.dropped += gap;
+        if self.last.is_none_or(|l| seq > l) {
+            self.last = Some(seq);
+        }
+        gap
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gaps_are_counted() {
+        let mut t = SeqTracker::default();
+        for s in [5, 6, 7, 10, 11, 15] {
+            t.observe(s);
+        }
+        assert_eq!((t.received, t.dropped), (6, 5));
+    }
+}
