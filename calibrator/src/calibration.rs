@@ -201,11 +201,7 @@ pub struct Calibration {
     pub blocks: Vec<Block>,
 }
 
-fn validate_block(
-    spec: &BlockSpec,
-    n_nodes: usize,
-    whole_array: bool,
-) -> Result<Block, String> {
+fn validate_block(spec: &BlockSpec, n_nodes: usize, whole_array: bool) -> Result<Block, String> {
     let name = &spec.name;
     if name.trim().is_empty() {
         return Err("a block has an empty name".into());
@@ -283,7 +279,8 @@ fn validate_block(
         let c = if NC == 1 {
             r.curvature_m1[0]
         } else {
-            r.curvature_m1[0] + (r.curvature_m1[1] - r.curvature_m1[0]) * ci as f64 / (NC - 1) as f64
+            r.curvature_m1[0]
+                + (r.curvature_m1[1] - r.curvature_m1[0]) * ci as f64 / (NC - 1) as f64
         };
         let smax = block.s_max(c);
         for si in 0..=NS {

@@ -148,10 +148,8 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
     }
     let g = recs[0].geometry(a.rows, a.cols).config_err()?;
     let center = crate::central_block(g.rows, g.cols);
-    let specs: Vec<(String, Vec<usize>)> = vec![
-        ("array".into(), Vec::new()),
-        ("center".into(), center),
-    ];
+    let specs: Vec<(String, Vec<usize>)> =
+        vec![("array".into(), Vec::new()), ("center".into(), center)];
     let mut blocks = Vec::new();
     for (name, nodes) in &specs {
         let mut obs: Vec<Observation> = Vec::new();
@@ -203,7 +201,9 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
             a.form,
             a.data
                 .iter()
-                .map(|p| p.file_name().map_or_else(String::new, |f| f.to_string_lossy().into_owned()))
+                .map(|p| p
+                    .file_name()
+                    .map_or_else(String::new, |f| f.to_string_lossy().into_owned()))
                 .collect::<Vec<_>>()
                 .join(", ")
         ),

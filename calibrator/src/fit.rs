@@ -66,7 +66,10 @@ pub fn observations(
     default_c: f64,
 ) -> Result<Vec<Observation>, FitError> {
     let path = rec.path.display().to_string();
-    let force = rec.force_n.as_ref().ok_or(FitError::NoForce { path: path.clone() })?;
+    let force = rec
+        .force_n
+        .as_ref()
+        .ok_or(FitError::NoForce { path: path.clone() })?;
     let trial = trials(rec);
     let n = rec.n_nodes;
     let all: Vec<usize> = (0..n).collect();
@@ -125,7 +128,10 @@ pub fn paper_terms(degree: u32, flat: bool) -> Vec<(u32, u32)> {
 
 /// Least-squares fit of `F = sum coef S^i C^j` over `powers`, on scaled variables for
 /// conditioning.
-pub fn fit_poly(obs: &[Observation], powers: &[(u32, u32)]) -> Result<(Vec<Term>, FitStats), FitError> {
+pub fn fit_poly(
+    obs: &[Observation],
+    powers: &[(u32, u32)],
+) -> Result<(Vec<Term>, FitStats), FitError> {
     let m = obs.len();
     let p = powers.len();
     if m < 2 * p {
@@ -168,7 +174,11 @@ pub fn stats(obs: &[Observation], model: impl Fn(f64, f64) -> f64) -> FitStats {
     }
     FitStats {
         n,
-        r2: if ss_tot > 0.0 { 1.0 - ss_res / ss_tot } else { 0.0 },
+        r2: if ss_tot > 0.0 {
+            1.0 - ss_res / ss_tot
+        } else {
+            0.0
+        },
         rmse_n: (ss_res / n.max(1) as f64).sqrt(),
     }
 }
@@ -224,7 +234,11 @@ fn write_block(out: &mut String, header: &str, b: &BlockSpec) {
     let ModelSpec::Poly { terms } = &b.model;
     let _ = writeln!(out, "model = {{ form = \"poly\", terms = [");
     for t in terms {
-        let _ = writeln!(out, "  {{ s = {}, c = {}, coef = {:e} }},", t.s, t.c, t.coef);
+        let _ = writeln!(
+            out,
+            "  {{ s = {}, c = {}, coef = {:e} }},",
+            t.s, t.c, t.coef
+        );
     }
     let _ = writeln!(out, "] }}");
     let r = &b.range;
@@ -260,7 +274,11 @@ pub fn to_toml(f: &CalibrationFile, comment: &str) -> String {
     }
     let _ = writeln!(out, "rows = {}", f.rows);
     let _ = writeln!(out, "cols = {}", f.cols);
-    let _ = writeln!(out, "default_curvature_m1 = {}", fmt_f(f.default_curvature_m1));
+    let _ = writeln!(
+        out,
+        "default_curvature_m1 = {}",
+        fmt_f(f.default_curvature_m1)
+    );
     write_block(&mut out, "[array]", &f.array);
     for b in &f.blocks {
         write_block(&mut out, "[[block]]", b);
@@ -280,7 +298,11 @@ mod tests {
         for c in [0.0, 20.0, 40.0, 60.0, 80.0] {
             for k in 0..50 {
                 let s = k as f64 * 10.0;
-                obs.push(Observation { s, c, f: truth(s, c) });
+                obs.push(Observation {
+                    s,
+                    c,
+                    f: truth(s, c),
+                });
             }
         }
         let (terms, st) = fit_poly(&obs, &paper_terms(3, false)).expect("fits");
@@ -311,7 +333,11 @@ mod tests {
                 name: "array".into(),
                 nodes: None,
                 model: ModelSpec::Poly {
-                    terms: vec![Term { s: 1, c: 0, coef: 0.01 }],
+                    terms: vec![Term {
+                        s: 1,
+                        c: 0,
+                        coef: 0.01,
+                    }],
                 },
                 range: RangeSpec {
                     s: [0.0, 500.0],

@@ -139,7 +139,13 @@ fn watch(path: PathBuf, rows: usize, cols: usize, tx: Sender<Arc<Loaded>>, stop:
                     generation,
                     "calibration reloaded"
                 );
-                if tx.send(Arc::new(Loaded { calibration, generation })).is_err() {
+                if tx
+                    .send(Arc::new(Loaded {
+                        calibration,
+                        generation,
+                    }))
+                    .is_err()
+                {
                     return;
                 }
             }

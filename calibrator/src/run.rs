@@ -8,8 +8,7 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
 use taxel_msgs::{
-    force_flags, raw_flags, CurvatureEstimate, ForceSample, RawFrame, Stream, MAX_BLOCKS,
-    MAX_NODES,
+    force_flags, raw_flags, CurvatureEstimate, ForceSample, RawFrame, Stream, MAX_BLOCKS, MAX_NODES,
 };
 use taxel_runtime::ipc::{self, Ipc};
 use taxel_runtime::stats::SeqTracker;
@@ -58,7 +57,9 @@ impl Calibrator {
 
     /// Takes a new baseline and curvature.
     pub fn set_curvature(&mut self, est: &CurvatureEstimate) {
-        let b = self.baseline.get_or_insert_with(|| Box::new([0.0; MAX_NODES]));
+        let b = self
+            .baseline
+            .get_or_insert_with(|| Box::new([0.0; MAX_NODES]));
         b.copy_from_slice(&est.baseline);
         self.curvature = Some((est.curvature_m1, est.t_capture_ns, est.model_version));
     }
@@ -110,9 +111,7 @@ impl Calibrator {
         };
         let reading = |nodes: &[usize]| -> f64 {
             if nodes.is_empty() {
-                (0..n)
-                    .map(|k| (frame.counts[k] - base[k]) as f64)
-                    .sum()
+                (0..n).map(|k| (frame.counts[k] - base[k]) as f64).sum()
             } else {
                 nodes
                     .iter()

@@ -54,8 +54,14 @@ impl Geometry {
     pub fn resolve(n: usize, rows: Option<usize>, cols: Option<usize>) -> Result<Geometry, String> {
         let g = match (rows, cols) {
             (Some(r), Some(c)) => Geometry { rows: r, cols: c },
-            (Some(r), None) if r > 0 && n % r == 0 => Geometry { rows: r, cols: n / r },
-            (None, Some(c)) if c > 0 && n % c == 0 => Geometry { rows: n / c, cols: c },
+            (Some(r), None) if r > 0 && n % r == 0 => Geometry {
+                rows: r,
+                cols: n / r,
+            },
+            (None, Some(c)) if c > 0 && n % c == 0 => Geometry {
+                rows: n / c,
+                cols: c,
+            },
             (None, None) => {
                 let s = (n as f64).sqrt().round() as usize;
                 if s * s != n {
@@ -420,14 +426,21 @@ pub struct RecordingWriter {
 }
 
 impl RecordingWriter {
-    pub fn create(path: &Path, n_nodes: usize, columns: Columns) -> Result<RecordingWriter, CsvError> {
+    pub fn create(
+        path: &Path,
+        n_nodes: usize,
+        columns: Columns,
+    ) -> Result<RecordingWriter, CsvError> {
         let file = File::create(path).map_err(|source| CsvError::Io {
             path: path.to_path_buf(),
             source,
         })?;
         let buf = BufWriter::with_capacity(1 << 16, file);
         let out: Box<dyn Write> = if path.extension().is_some_and(|e| e == "gz") {
-            Box::new(flate2::write::GzEncoder::new(buf, flate2::Compression::default()))
+            Box::new(flate2::write::GzEncoder::new(
+                buf,
+                flate2::Compression::default(),
+            ))
         } else {
             Box::new(buf)
         };
@@ -533,15 +546,24 @@ mod tests {
         assert_eq!(r.force_n, Some(vec![0.5, 0.0]));
         assert_eq!(r.trial, Some(vec![1, 2]));
         assert_eq!(r.curvature_m1, None);
-        assert_eq!(r.geometry(None, None).expect("square"), Geometry { rows: 2, cols: 2 });
+        assert_eq!(
+            r.geometry(None, None).expect("square"),
+            Geometry { rows: 2, cols: 2 }
+        );
     }
 
     #[test]
     fn single_node_and_geometry_rules() {
         let r = parse("t_s,n0,force_n\n0,19000,0\n1,3,40\n").expect("parses");
-        assert_eq!(r.geometry(None, None).expect("1x1"), Geometry { rows: 1, cols: 1 });
+        assert_eq!(
+            r.geometry(None, None).expect("1x1"),
+            Geometry { rows: 1, cols: 1 }
+        );
         assert!(Geometry::resolve(6, None, None).is_err());
-        assert_eq!(Geometry::resolve(6, Some(2), None), Ok(Geometry { rows: 2, cols: 3 }));
+        assert_eq!(
+            Geometry::resolve(6, Some(2), None),
+            Ok(Geometry { rows: 2, cols: 3 })
+        );
         assert!(Geometry::resolve(6, Some(4), Some(2)).is_err());
         assert!(Geometry::resolve(33 * 33, None, None).is_err());
     }
@@ -549,7 +571,10 @@ mod tests {
     #[test]
     fn bad_rows_name_file_and_line() {
         let e = parse("t_s,n0\n0,1\n1,abc\n").expect_err("bad number");
-        assert_eq!(e.to_string(), "x.csv:3: column 2 (n0): \"abc\" is not a number");
+        assert_eq!(
+            e.to_string(),
+            "x.csv:3: column 2 (n0): \"abc\" is not a number"
+        );
         let e = parse("t_s,n0\n0,1\n1,2,3\n").expect_err("extra field");
         assert!(e.to_string().starts_with("x.csv:3: 3 fields"), "{e}");
         let e = parse("t_s,n0\n0,NaN\n").expect_err("nan");
@@ -558,8 +583,14 @@ mod tests {
         assert!(e.to_string().contains("not an integer"), "{e}");
         assert!(parse("").is_err());
         assert!(parse("t_s,n0\n").is_err());
-        assert!(parse("n0,n1\n1,2\n").expect_err("no t").to_string().contains("t_s"));
-        assert!(parse("t_s,n0,n2\n0,1,2\n").expect_err("hole").to_string().contains("n1"));
+        assert!(parse("n0,n1\n1,2\n")
+            .expect_err("no t")
+            .to_string()
+            .contains("t_s"));
+        assert!(parse("t_s,n0,n2\n0,1,2\n")
+            .expect_err("hole")
+            .to_string()
+            .contains("n1"));
         assert!(parse("t_s,n0,n0\n0,1,2\n").is_err());
     }
 

@@ -11,7 +11,9 @@ pub enum EnvelopeError {
     TooShort { kind: &'static str, len: usize },
     #[error("not a {kind} file (bad magic bytes at offset 0)")]
     BadMagic { kind: &'static str },
-    #[error("{kind} file format version {found} is not supported (this build reads version {expected})")]
+    #[error(
+        "{kind} file format version {found} is not supported (this build reads version {expected})"
+    )]
     Version {
         kind: &'static str,
         found: u16,
@@ -75,10 +77,12 @@ pub fn decode<T: DeserializeOwned>(
         });
     }
     let cfg = bincode::config::standard().with_limit::<{ 256 * 1024 * 1024 }>();
-    let (value, used) = bincode::serde::decode_from_slice::<T, _>(&bytes[HEADER..], cfg)
-        .map_err(|e| EnvelopeError::Corrupt {
-            kind,
-            reason: e.to_string(),
+    let (value, used) =
+        bincode::serde::decode_from_slice::<T, _>(&bytes[HEADER..], cfg).map_err(|e| {
+            EnvelopeError::Corrupt {
+                kind,
+                reason: e.to_string(),
+            }
         })?;
     let end = HEADER + used;
     if end != bytes.len() {

@@ -281,10 +281,8 @@ impl RecordFileReader {
         if crc32(&self.buf) != crc {
             return self.stop("record checksum mismatch".into());
         }
-        let decoded = bincode::serde::decode_from_slice::<Record, _>(
-            &self.buf,
-            bincode::config::standard(),
-        );
+        let decoded =
+            bincode::serde::decode_from_slice::<Record, _>(&self.buf, bincode::config::standard());
         match decoded {
             Ok((rec, used)) if used == self.buf.len() => {
                 self.offset += 8 + len as u64;

@@ -98,7 +98,8 @@ pub struct RawFrame {
     /// counts for the paper's board. Only the first `rows * cols` entries are meaningful.
     pub counts: [f32; MAX_NODES],
 }
-const _: () = assert!(core::mem::size_of::<RawFrame>() == 8 + 8 + 32 + 4 + 4 + 4 + 4 + 4 * MAX_NODES);
+const _: () =
+    assert!(core::mem::size_of::<RawFrame>() == 8 + 8 + 32 + 4 + 4 + 4 + 4 + 4 * MAX_NODES);
 
 impl RawFrame {
     /// An all-zero frame (used to initialise shared-memory samples).

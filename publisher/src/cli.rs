@@ -81,7 +81,10 @@ pub struct ReplayArgs {
     pub repeat: bool,
 }
 
-fn read_toml<T>(path: &PathBuf, parse: impl Fn(&str) -> Result<T, taxel_sim::SimError>) -> anyhow::Result<T> {
+fn read_toml<T>(
+    path: &PathBuf,
+    parse: impl Fn(&str) -> Result<T, taxel_sim::SimError>,
+) -> anyhow::Result<T> {
     let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
     parse(&text).with_context(|| format!("{}", path.display()))
 }
@@ -149,7 +152,8 @@ fn run(args: Args) -> Result<(), Failure> {
         ),
     };
     let shutdown = Shutdown::install().runtime_err()?;
-    let ipc = Ipc::open(&args.common.prefix, &format!("publisher-{}", args.sensor)).runtime_err()?;
+    let ipc =
+        Ipc::open(&args.common.prefix, &format!("publisher-{}", args.sensor)).runtime_err()?;
     let s = crate::run::publish(&ipc, &args.sensor, source.as_mut(), args.seconds, &shutdown)
         .runtime_err()?;
     info!(

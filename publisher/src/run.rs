@@ -36,7 +36,10 @@ pub fn publish(
     shutdown: &Shutdown,
 ) -> anyhow::Result<Summary> {
     let (rows, cols) = (source.rows(), source.cols());
-    anyhow::ensure!(rows * cols <= MAX_NODES, "{rows} x {cols} exceeds {MAX_NODES} nodes");
+    anyhow::ensure!(
+        rows * cols <= MAX_NODES,
+        "{rows} x {cols} exceeds {MAX_NODES} nodes"
+    );
     let raw = ipc.publisher::<RawFrame>(sensor, Stream::Raw)?;
     let refs = ipc.publisher::<Reference>(sensor, Stream::Reference)?;
     let id = sensor_id_bytes(sensor)?;
@@ -129,7 +132,11 @@ pub fn publish(
 }
 
 /// Runs `source` offline into a recording CSV with the reference columns.
-pub fn write_csv(source: &mut dyn Source, path: &Path, total_hint: Option<u64>) -> anyhow::Result<u64> {
+pub fn write_csv(
+    source: &mut dyn Source,
+    path: &Path,
+    total_hint: Option<u64>,
+) -> anyhow::Result<u64> {
     let n = source.rows() * source.cols();
     let cols = Columns {
         force_n: true,

@@ -47,7 +47,11 @@ pub struct SimSource {
 impl SimSource {
     /// `frames`: stop after this many frames (None: the scenario's length, or forever when it
     /// repeats).
-    pub fn new(model: &SensorModel, scenario: &Scenario, frames: Option<u64>) -> anyhow::Result<SimSource> {
+    pub fn new(
+        model: &SensorModel,
+        scenario: &Scenario,
+        frames: Option<u64>,
+    ) -> anyhow::Result<SimSource> {
         let sim = Simulator::new(model, scenario)?;
         let remaining = frames.or(sim.frames_in_scenario());
         Ok(SimSource { sim, remaining })
@@ -165,7 +169,11 @@ impl Source for ReplaySource {
             }
             let t = &self.rec.t_s;
             let span = t[t.len() - 1] - t[0];
-            let step = if t.len() > 1 { span / (t.len() - 1) as f64 } else { 0.01 };
+            let step = if t.len() > 1 {
+                span / (t.len() - 1) as f64
+            } else {
+                0.01
+            };
             self.offset_s += span + step;
             self.next = 0;
             self.pass += 1;
@@ -218,7 +226,9 @@ mod tests {
         let d = s.next_frame(&mut out).expect("repeats");
         assert_eq!((d.due_s, out[0]), (0.75, 500.0));
         std::fs::write(&p, "t_s,n0\n1,5\n0,5\n").expect("write");
-        let e = ReplaySource::open(&p, None, None, 1.0, 0.0, false).err().expect("backwards");
+        let e = ReplaySource::open(&p, None, None, 1.0, 0.0, false)
+            .err()
+            .expect("backwards");
         assert!(format!("{e:#}").contains("backwards"), "{e:#}");
     }
 }

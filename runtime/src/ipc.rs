@@ -57,8 +57,7 @@ impl Ipc {
     /// process's shutdown flag owns the signals). Stale resources of dead nodes are cleaned up.
     pub fn open(prefix: &str, name: &str) -> Result<Ipc, IpcError> {
         let config = config(prefix)?;
-        let node_name =
-            NodeName::new(name).map_err(|e| err(format!("node name {name:?}"), e))?;
+        let node_name = NodeName::new(name).map_err(|e| err(format!("node name {name:?}"), e))?;
         let node = NodeBuilder::new()
             .name(&node_name)
             .config(&config)
@@ -277,4 +276,19 @@ pub fn count_nodes(prefix: &str) -> Result<(usize, usize), IpcError> {
     })
     .map_err(|e| err("listing nodes", e))?;
     Ok((alive, dead))
+}
+
+/// When no node is left under `prefix`, removes iceoryx2's per-prefix management segment too
+/// (iceoryx2 keeps it after the last node exits), so a finished pipeline leaves nothing in
+/// /dev/shm. Returns whether it was removed. Only a launcher that owns the prefix should call
+/// this: a process starting under the same prefix at that moment would lose the segment.
+pub fn release_prefix(prefix: &str) -> Result<bool, IpcError> {
+    let (alive, dead) = count_nodes(prefix)?;
+    if alive + dead > 0 {
+        return Ok(false);
+    }
+    let config = config(prefix)?;
+    // SAFETY: no node of this prefix exists (checked above), so no process uses the segment.
+    unsafe { iceoryx2::testing::remove_global_mgmt_segment::<ipc::Service>(&config) }
+        .map_err(|e| err("removing the prefix's management segment", e))
 }

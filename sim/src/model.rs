@@ -300,20 +300,47 @@ impl SensorModel {
             "rows and cols must be 1..=32",
         )?;
         let r = &self.readout;
-        check(r.vref_v.is_finite() && r.vref_v > 0.0, "readout.vref_v must be > 0")?;
-        check(r.rg_ohm.is_finite() && r.rg_ohm > 0.0, "readout.rg_ohm must be > 0")?;
-        check(r.vsat_v.is_finite() && r.vsat_v > r.vref_v, "readout.vsat_v must exceed vref_v")?;
-        check(r.adc_ref_v.is_finite() && r.adc_ref_v > 0.0, "readout.adc_ref_v must be > 0")?;
-        check((1..=24).contains(&r.adc_bits), "readout.adc_bits must be 1..=24")?;
-        check(finite_nonneg(r.noise_counts), "readout.noise_counts must be >= 0")?;
+        check(
+            r.vref_v.is_finite() && r.vref_v > 0.0,
+            "readout.vref_v must be > 0",
+        )?;
+        check(
+            r.rg_ohm.is_finite() && r.rg_ohm > 0.0,
+            "readout.rg_ohm must be > 0",
+        )?;
+        check(
+            r.vsat_v.is_finite() && r.vsat_v > r.vref_v,
+            "readout.vsat_v must exceed vref_v",
+        )?;
+        check(
+            r.adc_ref_v.is_finite() && r.adc_ref_v > 0.0,
+            "readout.adc_ref_v must be > 0",
+        )?;
+        check(
+            (1..=24).contains(&r.adc_bits),
+            "readout.adc_bits must be 1..=24",
+        )?;
+        check(
+            finite_nonneg(r.noise_counts),
+            "readout.noise_counts must be >= 0",
+        )?;
         let m = &self.material;
-        check(m.g0_us.is_finite() && m.g0_us > 0.0, "material.g0_us must be > 0")?;
-        check(finite_nonneg(m.gain_us_per_n), "material.gain_us_per_n must be >= 0")?;
+        check(
+            m.g0_us.is_finite() && m.g0_us > 0.0,
+            "material.g0_us must be > 0",
+        )?;
+        check(
+            finite_nonneg(m.gain_us_per_n),
+            "material.gain_us_per_n must be >= 0",
+        )?;
         check(
             m.exponent.is_finite() && (0.2..=3.0).contains(&m.exponent),
             "material.exponent must be in 0.2..=3",
         )?;
-        check(finite_nonneg(m.r_floor_ohm), "material.r_floor_ohm must be >= 0")?;
+        check(
+            finite_nonneg(m.r_floor_ohm),
+            "material.r_floor_ohm must be >= 0",
+        )?;
         let s = &self.spread;
         for (v, name) in [
             (s.node_gain_log_sd, "spread.node_gain_log_sd"),
@@ -321,7 +348,10 @@ impl SensorModel {
             (s.build_gain_log_sd, "spread.build_gain_log_sd"),
             (s.build_g0_log_sd, "spread.build_g0_log_sd"),
         ] {
-            check(finite_nonneg(v) && v <= 2.0, &format!("{name} must be in 0..=2"))?;
+            check(
+                finite_nonneg(v) && v <= 2.0,
+                &format!("{name} must be in 0..=2"),
+            )?;
         }
         let c = &self.curvature;
         check(
@@ -366,15 +396,24 @@ impl SensorModel {
                 t.alpha_per_k.is_finite() && t.alpha_per_k.abs() < 0.1,
                 "thermal_drift.alpha_per_k must be in (-0.1, 0.1)",
             )?;
-            check(t.tau_s.is_finite() && t.tau_s > 0.0, "thermal_drift.tau_s must be > 0")?;
+            check(
+                t.tau_s.is_finite() && t.tau_s > 0.0,
+                "thermal_drift.tau_s must be > 0",
+            )?;
             check(t.t0_c.is_finite(), "thermal_drift.t0_c must be finite")?;
         }
         if let Some(x) = &self.crosstalk {
             check(finite_nonneg(x.rs_ohm), "crosstalk.rs_ohm must be >= 0")?;
-            check(finite_nonneg(x.vos_max_v), "crosstalk.vos_max_v must be >= 0")?;
+            check(
+                finite_nonneg(x.vos_max_v),
+                "crosstalk.vos_max_v must be >= 0",
+            )?;
         }
         if let Some(s) = &self.scan_skew {
-            check(finite_nonneg(s.dt_node_s), "scan_skew.dt_node_s must be >= 0")?;
+            check(
+                finite_nonneg(s.dt_node_s),
+                "scan_skew.dt_node_s must be >= 0",
+            )?;
         }
         Ok(())
     }

@@ -59,8 +59,14 @@ impl Contact {
     /// Share of the force carried by each node (row-major): the overlap of the indenter with the
     /// node's cell over the indenter's area. Force outside the array is lost.
     pub fn weights(&self, rows: usize, cols: usize) -> Vec<f64> {
-        let (r0, r1) = (self.row - self.size_rows / 2.0, self.row + self.size_rows / 2.0);
-        let (c0, c1) = (self.col - self.size_cols / 2.0, self.col + self.size_cols / 2.0);
+        let (r0, r1) = (
+            self.row - self.size_rows / 2.0,
+            self.row + self.size_rows / 2.0,
+        );
+        let (c0, c1) = (
+            self.col - self.size_cols / 2.0,
+            self.col + self.size_cols / 2.0,
+        );
         let area = self.size_rows * self.size_cols;
         let overlap = |a0: f64, a1: f64, b0: f64, b1: f64| (a1.min(b1) - a0.max(b0)).max(0.0);
         let mut w = Vec::with_capacity(rows * cols);
@@ -381,10 +387,7 @@ impl Timeline {
                     mounts.push((t, *mounting));
                     t += nonneg(*rest_s, "rest_s", i)?;
                 }
-                Step::Temperature {
-                    temp_c,
-                    duration_s,
-                } => {
+                Step::Temperature { temp_c, duration_s } => {
                     if !temp_c.is_finite() {
                         return Err(SimError::Invalid(format!(
                             "step {}: temp_c must be finite",
@@ -493,7 +496,11 @@ mod tests {
     fn central_contact_covers_the_central_block() {
         let w = Contact::central(4, 4).weights(4, 4);
         for (k, wk) in w.iter().enumerate() {
-            let expect = if [5, 6, 9, 10].contains(&k) { 0.25 } else { 0.0 };
+            let expect = if [5, 6, 9, 10].contains(&k) {
+                0.25
+            } else {
+                0.0
+            };
             assert!((wk - expect).abs() < 1e-12, "node {k}: {wk}");
         }
         let w1 = Contact::central(1, 1).weights(1, 1);

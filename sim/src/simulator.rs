@@ -99,7 +99,10 @@ impl Simulator {
             (tr, tau * r.uniform(), tau * r.uniform())
         });
         let creep_terms = model.creep.as_ref().map_or(0, |c| c.tau_s.len());
-        let hyst_terms = model.hysteresis.as_ref().map_or(0, |h| h.thresholds_n.len());
+        let hyst_terms = model
+            .hysteresis
+            .as_ref()
+            .map_or(0, |h| h.thresholds_n.len());
         Ok(Simulator {
             model: model.clone(),
             timeline,
@@ -387,7 +390,10 @@ mod tests {
             prev = s;
         }
         let first = block_sum(&frames[0].1);
-        assert!(prev - first > 600.0, "20 N should move the block by hundreds of counts");
+        assert!(
+            prev - first > 600.0,
+            "20 N should move the block by hundreds of counts"
+        );
     }
 
     #[test]
@@ -398,7 +404,10 @@ mod tests {
             deltas.push(block_sum(&frames[500].1) - block_sum(&frames[0].1));
         }
         assert!(deltas[0] > deltas[1] && deltas[1] > deltas[2], "{deltas:?}");
-        assert!(deltas[2] < 0.8 * deltas[0], "loss at 80 1/m too small: {deltas:?}");
+        assert!(
+            deltas[2] < 0.8 * deltas[0],
+            "loss at 80 1/m too small: {deltas:?}"
+        );
     }
 
     #[test]
@@ -421,7 +430,10 @@ mod tests {
             flipped: true,
             ..bent
         });
-        assert!(a.iter().any(|f| (f - 1.0).abs() > 0.1), "curvature moves the baseline");
+        assert!(
+            a.iter().any(|f| (f - 1.0).abs() > 0.1),
+            "curvature moves the baseline"
+        );
         assert_ne!(a, b, "rotation changes the pattern");
         assert_ne!(a, c, "flipping changes the pattern");
         // Along the bend the pattern varies across columns for rotation 0, rows for 90.
@@ -475,7 +487,12 @@ mod tests {
         });
         let a = run(&plain, &ramp(0.0), 1000);
         let b = run(&xt, &ramp(0.0), 1000);
-        assert!(b[999].1[5] < a[999].1[5], "{} vs {}", b[999].1[5], a[999].1[5]);
+        assert!(
+            b[999].1[5] < a[999].1[5],
+            "{} vs {}",
+            b[999].1[5],
+            a[999].1[5]
+        );
     }
 
     #[test]

@@ -1,0 +1,5 @@
+use clap::Parser;
+
+fn main() -> std::process::ExitCode {
+    taxel_consumers::control::main(taxel_consumers::control::Args::parse())
+}

@@ -1,0 +1,132 @@
+//! The latency probe: subscribes to one stream of a sensor, wakes on data, and reports the
+//! age of every sample (now - t_capture_ns) as percentiles, plus drops from sequence gaps.
+
+use std::process::ExitCode;
+use std::time::Instant;
+
+use clap::Parser;
+use iceoryx2::prelude::*;
+use taxel_msgs::{ForceSample, RawFrame, Stream};
+use taxel_runtime::ipc::{self, Ipc, StreamSubscriber};
+use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
+use taxel_runtime::stats::SeqTracker;
+use taxel_runtime::{now_ns, Shutdown};
+
+use crate::age::{json_report, AgeHistogram};
+
+/// Sample age percentiles and drops of one sensor's stream.
+#[derive(Debug, Parser)]
+#[command(name = "taxel-latency", version)]
+pub struct Args {
+    #[command(flatten)]
+    pub common: CommonArgs,
+    /// Sensor id.
+    #[arg(long, default_value = "s0")]
+    pub sensor: String,
+    /// Measure for this many seconds (default: until Ctrl-C).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+    /// Print one JSON object on stdout instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// Which stream to measure.
+    #[arg(long, default_value = "force", value_parser = ["force", "raw"])]
+    pub stream: String,
+}
+
+pub fn main(args: Args) -> ExitCode {
+    init_tracing(&args.common.log);
+    exit_code("taxel-latency", run(args))
+}
+
+fn measure<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
+    sub: &StreamSubscriber<T>,
+    stamp: impl Fn(&T) -> (u64, u64),
+    seconds: Option<f64>,
+    shutdown: &Shutdown,
+) -> anyhow::Result<(SeqTracker, AgeHistogram, f64)> {
+    let ws = ipc::waitset()?;
+    let guard = ws
+        .attach_notification(sub.listener())
+        .map_err(|e| anyhow::anyhow!("attach listener: {e:?}"))?;
+    let mut seq = SeqTracker::default();
+    let mut h = AgeHistogram::new();
+    let mut failure = None;
+    let start = Instant::now();
+    while !shutdown.requested() && failure.is_none() {
+        if seconds.is_some_and(|s| start.elapsed().as_secs_f64() >= s) {
+            break;
+        }
+        ws.wait_and_process_once_with_timeout(
+            |id| {
+                if id.has_event_from(&guard) {
+                    let r = sub.drain(|v| {
+                        let now = now_ns();
+                        let (s, t) = stamp(v);
+                        h.record_ns(now.saturating_sub(t));
+                        seq.observe(s);
+                    });
+                    if let Err(e) = r {
+                        failure = Some(e);
+                    }
+                }
+                CallbackProgression::Continue
+            },
+            ipc::TICK,
+        )
+        .map_err(|e| anyhow::anyhow!("waitset: {e:?}"))?;
+    }
+    if let Some(e) = failure {
+        return Err(e.into());
+    }
+    Ok((seq, h, start.elapsed().as_secs_f64()))
+}
+
+fn run(a: Args) -> Result<(), Failure> {
+    taxel_msgs::sensor_id_bytes(&a.sensor).config_err()?;
+    if let Some(s) = a.seconds {
+        if !(s.is_finite() && s > 0.0) {
+            return Err(Failure::config(anyhow::anyhow!(
+                "--seconds must be a positive number, got {s}"
+            )));
+        }
+    }
+    let shutdown = Shutdown::install().runtime_err()?;
+    let ipc = Ipc::open(&a.common.prefix, &format!("latency-{}", a.sensor)).runtime_err()?;
+    let (seq, h, secs) = if a.stream == "raw" {
+        let sub = ipc
+            .subscriber::<RawFrame>(&a.sensor, Stream::Raw)
+            .runtime_err()?;
+        measure(&sub, |f| (f.seq, f.t_capture_ns), a.seconds, &shutdown).runtime_err()?
+    } else {
+        let sub = ipc
+            .subscriber::<ForceSample>(&a.sensor, Stream::Force)
+            .runtime_err()?;
+        measure(&sub, |f| (f.seq, f.t_capture_ns), a.seconds, &shutdown).runtime_err()?
+    };
+    if a.json {
+        println!(
+            "{}",
+            json_report(
+                seq.received,
+                seq.dropped,
+                &h,
+                &[("seconds", (secs * 1000.0).round() / 1000.0)]
+            )
+        );
+    } else {
+        println!(
+            "taxel/{}/{}: {} samples in {secs:.1} s, dropped {}\n  age p50 {:.1} us | p90 {:.1} us | p99 {:.1} us | p99.9 {:.1} us | max {:.1} us",
+            a.sensor,
+            a.stream,
+            seq.received,
+            seq.dropped,
+            h.percentile_us(50.0),
+            h.percentile_us(90.0),
+            h.percentile_us(99.0),
+            h.percentile_us(99.9),
+            h.max_us()
+        );
+    }
+    Ok(())
+}
