@@ -171,7 +171,7 @@ pub fn run(
         file = %cfg.calibration.display(),
         id = %cal.calibration().id,
         version = cal.calibration().version,
-        "calibrator running"
+        "calibrator ready"
     );
     // A late start still gets the latest estimate through the stream's history.
     if let Some(est) = curv.latest()? {

@@ -168,6 +168,7 @@ fn run(a: Args) -> Result<(), Failure> {
         .attach_deadline(force.listener(), watchdog)
         .map_err(|e| anyhow::anyhow!("attach force listener: {e:?}"))
         .runtime_err()?;
+    tracing::info!(sensor = %a.sensor, target_n = a.target_n, "control ready");
     let deadline_ns = (a.deadline_ms * 1e6) as u64;
     let mut pi = Pi {
         kp: a.kp,

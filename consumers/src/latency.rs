@@ -49,6 +49,7 @@ fn measure<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     let guard = ws
         .attach_notification(sub.listener())
         .map_err(|e| anyhow::anyhow!("attach listener: {e:?}"))?;
+    tracing::info!("latency probe ready on {}", sub.name());
     let mut seq = SeqTracker::default();
     let mut h = AgeHistogram::new();
     let mut failure = None;

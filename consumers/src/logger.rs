@@ -354,7 +354,7 @@ fn record(common: &CommonArgs, a: RecordArgs) -> Result<(), Failure> {
     let start = Instant::now();
     let mut last_flush = start;
     let mut failure: Option<anyhow::Error> = None;
-    info!(sensors = ?a.sensors, file = %a.out.display(), "logger recording");
+    info!(sensors = ?a.sensors, file = %a.out.display(), "logger ready");
     while !shutdown.requested() && failure.is_none() {
         if a.seconds
             .is_some_and(|s| start.elapsed().as_secs_f64() >= s)

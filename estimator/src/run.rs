@@ -36,7 +36,7 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
     let mut est = CurvatureEstimate::ZERO;
     let mut summary = Summary::default();
     let mut failure: Option<anyhow::Error> = None;
-    info!(sensor = %cfg.sensor, curvature_m1 = cfg.curvature_m1, "estimator running (configured curvature)");
+    info!(sensor = %cfg.sensor, curvature_m1 = cfg.curvature_m1, "estimator ready (configured curvature)");
     while !shutdown.requested() && failure.is_none() {
         ws.wait_and_process_once_with_timeout(
             |id| {

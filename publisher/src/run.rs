@@ -66,7 +66,7 @@ pub fn publish(
     let mut summary = Summary::default();
     let mut last_report = start;
     let mut frames_at_report = 0u64;
-    info!(sensor, rows, cols, "publishing on {}", raw.name());
+    info!(sensor, rows, cols, "publisher ready on {}", raw.name());
     while !shutdown.requested() {
         if max_seconds.is_some_and(|m| start.elapsed().as_secs_f64() >= m) {
             break;

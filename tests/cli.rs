@@ -1,0 +1,121 @@
+//! Bad input gets a clear one-line error naming the thing and a non-zero exit (2 for bad
+//! configuration); the demo runs as separate processes and exits 0 leaving nothing behind.
+
+mod common;
+
+use common::{run, shm_files, unique_prefix};
+
+fn assert_config_error(args: &[&str], needle: &str) {
+    let prefix = unique_prefix("c");
+    let (code, _out, err) = run(&prefix, args);
+    assert_eq!(code, 2, "{args:?} exited {code}: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert!(
+        lines.iter().any(|l| l.contains(needle)),
+        "{args:?}: expected {needle:?} in stderr:\n{err}"
+    );
+    let error_lines = lines.iter().filter(|l| l.contains("error")).count();
+    assert!(error_lines >= 1, "{args:?}: no error line:\n{err}");
+}
+
+#[test]
+fn bad_input_is_refused_with_a_named_reason() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let garbage = dir.path().join("garbage.toml");
+    std::fs::write(&garbage, b"\x00\x01\x02 not toml").expect("write");
+    let g = garbage.display().to_string();
+    let nan = dir.path().join("nan.toml");
+    std::fs::write(
+        &nan,
+        include_str!("../calibrations/sim-default.toml").replacen("version = 1", "version = 0", 1),
+    )
+    .expect("write");
+    let n = nan.display().to_string();
+    let bad_csv = dir.path().join("bad.csv");
+    std::fs::write(&bad_csv, "t_s,n0,n1,n2,n3\n0,1,2,3,4\n0.01,1,2,x,4\n").expect("write");
+    let b = bad_csv.display().to_string();
+    let bad_scenario = dir.path().join("s.toml");
+    std::fs::write(&bad_scenario, "[[step]]\nkind = \"press\"\nforce_n = -3\n").expect("write");
+    let s = bad_scenario.display().to_string();
+
+    assert_config_error(
+        &["calibrator", "run", "--calibration", "/no/such/cal.toml"],
+        "/no/such/cal.toml",
+    );
+    assert_config_error(&["calibrator", "run", "--calibration", &g], "garbage.toml");
+    assert_config_error(&["calibrator", "run", "--calibration", &n], "version");
+    assert_config_error(
+        &["calibrator", "run", "--sensor", "a/b", "--calibration", &n],
+        "invalid sensor id",
+    );
+    assert_config_error(
+        &["publisher", "--sensor", "bad id", "sim"],
+        "invalid sensor id",
+    );
+    assert_config_error(
+        &["publisher", "sim", "--model", "/no/model.toml"],
+        "/no/model.toml",
+    );
+    assert_config_error(&["publisher", "sim", "--scenario", &s], "step 1");
+    assert_config_error(&["publisher", "replay", &b], "bad.csv:3");
+    assert_config_error(&["publisher", "replay", "/no/rec.csv"], "/no/rec.csv");
+    assert_config_error(
+        &["estimator", "run", "--window-frames", "1"],
+        "window_frames",
+    );
+    assert_config_error(
+        &["logger", "export", &g, "--csv", "/tmp/x.csv"],
+        "garbage.toml",
+    );
+    assert_config_error(&["demo", "--sensors", "0"], "--sensors");
+    assert_config_error(&["control", "--deadline-ms=-1"], "--deadline-ms");
+    // Unknown flags and subcommands are usage errors (clap exits 2 too).
+    assert_config_error(&["publisher", "--frobnicate"], "--frobnicate");
+}
+
+#[test]
+fn demo_runs_every_role_as_a_process_and_exits_clean() {
+    let prefix = unique_prefix("d");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().display().to_string();
+    let (code, stdout, stderr) = run(
+        &prefix,
+        &[
+            "demo",
+            "--sensors",
+            "2",
+            "--seconds",
+            "4",
+            "--rate-hz",
+            "200",
+            "--prefix",
+            &prefix,
+            "--out",
+            &out,
+        ],
+    );
+    assert_eq!(code, 0, "demo failed:\n{stdout}\n{stderr}");
+    for name in ["s0", "s1"] {
+        assert!(
+            stdout
+                .lines()
+                .any(|l| l.starts_with(&format!("[{name}]")) && l.contains(" Hz | C ")),
+            "no status line for {name}:\n{stdout}"
+        );
+        for role in ["control", "calibrator", "estimator", "publisher"] {
+            let line = format!("{role}-{name}");
+            assert!(
+                stdout
+                    .lines()
+                    .any(|l| l.contains(&line) && l.contains("exited 0")),
+                "{line} did not exit 0:\n{stdout}"
+            );
+        }
+    }
+    assert!(
+        stdout.contains("logger") && stdout.contains("no iceoryx2 nodes left"),
+        "{stdout}"
+    );
+    assert!(dir.path().join("demo.taxrec").exists());
+    assert_eq!(shm_files(&prefix), Vec::<String>::new());
+}
