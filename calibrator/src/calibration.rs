@@ -286,7 +286,8 @@ fn validate_block(spec: &BlockSpec, n_nodes: usize, whole_array: bool) -> Result
         for si in 0..=NS {
             let s = r.s[0] + (smax - r.s[0]) * si as f64 / NS as f64;
             let d = block.slope(s, c);
-            if !(d > 0.0) || !block.poly(s, c).is_finite() {
+            let increasing = d > 0.0; // false for NaN too
+            if !increasing || !block.poly(s, c).is_finite() {
                 return Err(format!(
                     "block {name:?}: not increasing in S at S = {s:.1}, C = {c:.1} 1/m (dF/dS = {d:.3e}); narrow its declared range"
                 ));

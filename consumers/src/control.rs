@@ -90,56 +90,99 @@ pub fn main(args: Args) -> ExitCode {
     exit_code("taxel-control", run(args))
 }
 
-#[derive(Default)]
-struct Window {
-    samples: u64,
+/// Everything the loop measures and controls.
+struct State {
+    pi: Pi,
+    hand: Hand,
+    seq: SeqTracker,
+    total: AgeHistogram,
+    window: AgeHistogram,
+    window_samples: u64,
     last: Option<ForceSample>,
-}
-
-fn status_line(
-    sensor: &str,
-    hz: f64,
-    f: &ForceSample,
-    h: &AgeHistogram,
-    dropped: u64,
     misses: u64,
     safe: bool,
-    hand: &Hand,
-) -> String {
-    let mut blocks = String::new();
-    for (i, b) in f.blocks().iter().enumerate() {
-        blocks.push_str(&format!("b{i} {b:5.2} N, "));
-    }
-    let c_note = if f.flags & force_flags::CURVATURE_DEFAULTED != 0 {
-        " (default)"
-    } else if f.flags & force_flags::CURVATURE_STALE != 0 {
-        " (stale)"
-    } else {
-        ""
-    };
-    let mut flags = Vec::new();
-    for (bit, name) in [
-        (force_flags::SATURATED, "SAT"),
-        (force_flags::OUT_OF_RANGE, "RANGE"),
-        (force_flags::NO_BASELINE, "NO-BASELINE"),
-        (force_flags::GAP_BEFORE, "GAP"),
-    ] {
-        if f.flags & bit != 0 {
-            flags.push(name);
+    safe_entries: u64,
+    last_t: Option<u64>,
+}
+
+impl State {
+    fn enter_safe(&mut self) {
+        if !self.safe {
+            self.safe_entries += 1;
         }
+        self.safe = true;
     }
-    format!(
-        "[{sensor}] {hz:6.1} Hz | C {:5.1} 1/m{c_note} | {blocks}array {:5.2} N | cal v{} gen {} | age p50 {:6.1} us p99 {:6.1} us | dropped {dropped} | misses {misses} | grip {:.2} {}{}",
-        f.curvature_m1,
-        f.total_force_n,
-        f.cal_version,
-        f.cal_generation,
-        h.percentile_us(50.0),
-        h.percentile_us(99.0),
-        hand.position,
-        if safe { "SAFE" } else { "ok" },
-        if flags.is_empty() { String::new() } else { format!(" [{}]", flags.join(" ")) },
-    )
+
+    fn on_sample(&mut self, f: &ForceSample, target_n: f64, deadline_ns: u64) {
+        let age = now_ns().saturating_sub(f.t_capture_ns);
+        self.total.record_ns(age);
+        self.window.record_ns(age);
+        if age > deadline_ns {
+            self.misses += 1;
+        }
+        self.seq.observe(f.seq);
+        self.window_samples += 1;
+        self.last = Some(*f);
+        let dt = self
+            .last_t
+            .map_or(0.0, |t| f.t_capture_ns.saturating_sub(t) as f64 * 1e-9);
+        self.last_t = Some(f.t_capture_ns);
+        if f.flags & UNSAFE_FLAGS != 0 || !f.total_force_n.is_finite() {
+            self.enter_safe();
+        } else {
+            self.safe = false;
+            self.hand.command = self
+                .pi
+                .update(target_n - f.total_force_n as f64, dt.min(0.1));
+        }
+        self.hand.step(dt);
+    }
+
+    fn status_line(&self, sensor: &str, hz: f64) -> String {
+        let Some(f) = &self.last else {
+            return format!("[{sensor}] waiting for force samples on taxel/{sensor}/force");
+        };
+        let mut blocks = String::new();
+        for (i, b) in f.blocks().iter().enumerate() {
+            blocks.push_str(&format!("b{i} {b:5.2} N, "));
+        }
+        let c_note = if f.flags & force_flags::CURVATURE_DEFAULTED != 0 {
+            " (default)"
+        } else if f.flags & force_flags::CURVATURE_STALE != 0 {
+            " (stale)"
+        } else {
+            ""
+        };
+        let mut flags = Vec::new();
+        for (bit, name) in [
+            (force_flags::SATURATED, "SAT"),
+            (force_flags::OUT_OF_RANGE, "RANGE"),
+            (force_flags::NO_BASELINE, "NO-BASELINE"),
+            (force_flags::GAP_BEFORE, "GAP"),
+        ] {
+            if f.flags & bit != 0 {
+                flags.push(name);
+            }
+        }
+        format!(
+            "[{sensor}] {hz:6.1} Hz | C {:5.1} 1/m{c_note} | {blocks}array {:5.2} N | cal v{} gen {} | age p50 {:6.1} us p99 {:6.1} us | dropped {} | misses {} | grip {:.2} {}{}",
+            f.curvature_m1,
+            f.total_force_n,
+            f.cal_version,
+            f.cal_generation,
+            self.window.percentile_us(50.0),
+            self.window.percentile_us(99.0),
+            self.seq.dropped,
+            self.misses,
+            self.hand.position,
+            if self.safe { "SAFE" } else { "ok" },
+            if flags.is_empty() {
+                String::new()
+            } else {
+                format!(" [{}]", flags.join(" "))
+            },
+        )
+    }
 }
 
 fn run(a: Args) -> Result<(), Failure> {
@@ -170,20 +213,23 @@ fn run(a: Args) -> Result<(), Failure> {
         .runtime_err()?;
     tracing::info!(sensor = %a.sensor, target_n = a.target_n, "control ready");
     let deadline_ns = (a.deadline_ms * 1e6) as u64;
-    let mut pi = Pi {
-        kp: a.kp,
-        ki: a.ki,
-        integral: 0.0,
+    let mut st = State {
+        pi: Pi {
+            kp: a.kp,
+            ki: a.ki,
+            integral: 0.0,
+        },
+        hand: Hand::default(),
+        seq: SeqTracker::default(),
+        total: AgeHistogram::new(),
+        window: AgeHistogram::new(),
+        window_samples: 0,
+        last: None,
+        misses: 0,
+        safe: true,
+        safe_entries: 0,
+        last_t: None,
     };
-    let mut hand = Hand::default();
-    let mut seq = SeqTracker::default();
-    let mut total = AgeHistogram::new();
-    let mut window_h = AgeHistogram::new();
-    let mut window = Window::default();
-    let mut misses = 0u64;
-    let mut safe = true;
-    let mut safe_entries = 0u64;
-    let mut last_t: Option<u64> = None;
     let mut failure = None;
     let start = Instant::now();
     let mut last_report = start;
@@ -195,38 +241,12 @@ fn run(a: Args) -> Result<(), Failure> {
         }
         ws.wait_and_process_once_with_timeout(
             |id| {
-                if id.has_missed_deadline(&guard) && !safe {
-                    safe = true;
-                    safe_entries += 1;
+                if id.has_missed_deadline(&guard) && !st.safe {
+                    st.enter_safe();
                     tracing::warn!(sensor = %a.sensor, "no force sample for {:.0} ms: safe state", a.watchdog_ms);
                 }
                 if id.has_event_from(&guard) {
-                    let r = force.drain(|f| {
-                        let now = now_ns();
-                        let age = now.saturating_sub(f.t_capture_ns);
-                        total.record_ns(age);
-                        window_h.record_ns(age);
-                        if age > deadline_ns {
-                            misses += 1;
-                        }
-                        seq.observe(f.seq);
-                        window.samples += 1;
-                        window.last = Some(*f);
-                        let dt = last_t.map_or(0.0, |t| f.t_capture_ns.saturating_sub(t) as f64 * 1e-9);
-                        last_t = Some(f.t_capture_ns);
-                        let bad = f.flags & UNSAFE_FLAGS != 0 || !f.total_force_n.is_finite();
-                        if bad {
-                            if !safe {
-                                safe_entries += 1;
-                            }
-                            safe = true;
-                        } else {
-                            safe = false;
-                            hand.command = pi.update(a.target_n - f.total_force_n as f64, dt.min(0.1));
-                        }
-                        hand.step(dt);
-                    });
-                    if let Err(e) = r {
+                    if let Err(e) = force.drain(|f| st.on_sample(f, a.target_n, deadline_ns)) {
                         failure = Some(e);
                     }
                 }
@@ -239,31 +259,13 @@ fn run(a: Args) -> Result<(), Failure> {
         let el = last_report.elapsed();
         if el >= Duration::from_secs(1) {
             if !a.quiet {
-                match &window.last {
-                    Some(f) => println!(
-                        "{}",
-                        status_line(
-                            &a.sensor,
-                            window.samples as f64 / el.as_secs_f64(),
-                            f,
-                            &window_h,
-                            seq.dropped,
-                            misses,
-                            safe,
-                            &hand
-                        )
-                    ),
-                    None => println!(
-                        "[{}] waiting for force samples on taxel/{}/force",
-                        a.sensor, a.sensor
-                    ),
-                }
+                println!(
+                    "{}",
+                    st.status_line(&a.sensor, st.window_samples as f64 / el.as_secs_f64())
+                );
             }
-            window = Window {
-                samples: 0,
-                last: window.last,
-            };
-            window_h.reset();
+            st.window_samples = 0;
+            st.window.reset();
             last_report = Instant::now();
         }
     }
@@ -273,15 +275,15 @@ fn run(a: Args) -> Result<(), Failure> {
     println!(
         "[{}] summary: {} samples in {:.1} s, dropped {}, age p50 {:.1} us p99 {:.1} us max {:.1} us, deadline misses {} (> {} ms), safe-state entries {}",
         a.sensor,
-        seq.received,
+        st.seq.received,
         start.elapsed().as_secs_f64(),
-        seq.dropped,
-        total.percentile_us(50.0),
-        total.percentile_us(99.0),
-        total.max_us(),
-        misses,
+        st.seq.dropped,
+        st.total.percentile_us(50.0),
+        st.total.percentile_us(99.0),
+        st.total.max_us(),
+        st.misses,
         a.deadline_ms,
-        safe_entries
+        st.safe_entries
     );
     Ok(())
 }

@@ -423,11 +423,21 @@ fn record(common: &CommonArgs, a: RecordArgs) -> Result<(), Failure> {
     Ok(())
 }
 
+/// The force-sample columns of one exported frame.
+struct ForceRow {
+    total_force_n: f32,
+    total_reading: f32,
+    curvature_m1: f32,
+    cal_version: u32,
+    flags: u32,
+    block_force_n: Vec<f32>,
+}
+
 /// Per-sensor data gathered from a record file for export.
 #[derive(Default)]
 struct SensorLog {
     raw: Vec<(u64, u64, Vec<f32>)>,
-    force: HashMap<u64, (f32, f32, f32, u32, u32, Vec<f32>)>,
+    force: HashMap<u64, ForceRow>,
     reference: HashMap<u64, (f32, f32, f32, i32)>,
     curvature: Vec<(u64, f32)>,
     n_nodes: usize,
@@ -490,14 +500,14 @@ fn export(a: ExportArgs) -> Result<(), Failure> {
                 log.n_blocks = log.n_blocks.max(block_force_n.len());
                 log.force.insert(
                     seq,
-                    (
+                    ForceRow {
                         total_force_n,
                         total_reading,
                         curvature_m1,
                         cal_version,
                         flags,
                         block_force_n,
-                    ),
+                    },
                 );
             }
             Record::Reference {
@@ -584,13 +594,13 @@ fn write_sensor_csv(path: &Path, log: &SensorLog) -> anyhow::Result<usize> {
         }
         ex.iter_mut().for_each(|v| *v = f64::NAN);
         ex[0] = *seq as f64;
-        if let Some((f, s, c, v, fl, blocks)) = log.force.get(seq) {
-            ex[1] = *f as f64;
-            ex[2] = *s as f64;
-            ex[3] = *c as f64;
-            ex[4] = *v as f64;
-            ex[5] = *fl as f64;
-            for (i, b) in blocks.iter().enumerate() {
+        if let Some(f) = log.force.get(seq) {
+            ex[1] = f.total_force_n as f64;
+            ex[2] = f.total_reading as f64;
+            ex[3] = f.curvature_m1 as f64;
+            ex[4] = f.cal_version as f64;
+            ex[5] = f.flags as f64;
+            for (i, b) in f.block_force_n.iter().enumerate() {
                 ex[6 + i] = *b as f64;
             }
         } else {

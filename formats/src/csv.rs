@@ -54,11 +54,11 @@ impl Geometry {
     pub fn resolve(n: usize, rows: Option<usize>, cols: Option<usize>) -> Result<Geometry, String> {
         let g = match (rows, cols) {
             (Some(r), Some(c)) => Geometry { rows: r, cols: c },
-            (Some(r), None) if r > 0 && n % r == 0 => Geometry {
+            (Some(r), None) if r > 0 && n.is_multiple_of(r) => Geometry {
                 rows: r,
                 cols: n / r,
             },
-            (None, Some(c)) if c > 0 && n % c == 0 => Geometry {
+            (None, Some(c)) if c > 0 && n.is_multiple_of(c) => Geometry {
                 rows: n / c,
                 cols: c,
             },

@@ -165,7 +165,7 @@ pub fn write_csv(
             extra: &[],
         })?;
         frames += 1;
-        if frames % 1000 == 0 {
+        if frames.is_multiple_of(1000) {
             progress.set(frames);
         }
     }

@@ -38,6 +38,10 @@ pub const MAX_PUBLISHERS: usize = 2;
 /// Nodes per service.
 pub const MAX_NODES: usize = 32;
 
+type PubSubFactory<T> =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>;
+type EventFactory = iceoryx2::service::port_factory::event::PortFactory<ipc::Service>;
+
 /// The iceoryx2 configuration for a service prefix.
 pub fn config(prefix: &str) -> Result<Config, IpcError> {
     let mut config = Config::default();
@@ -71,13 +75,7 @@ impl Ipc {
         &self,
         sensor: &str,
         stream: Stream,
-    ) -> Result<
-        (
-            iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>,
-            iceoryx2::service::port_factory::event::PortFactory<ipc::Service>,
-        ),
-        IpcError,
-    > {
+    ) -> Result<(PubSubFactory<T>, EventFactory), IpcError> {
         let name = service_name(sensor, stream);
         let sname: ServiceName = name
             .as_str()

@@ -450,12 +450,14 @@ mod tests {
 
     #[test]
     fn same_seed_same_frames_other_seed_other_frames() {
-        let mut m = SensorModel::default();
-        m.creep = Some(Default::default());
-        m.hysteresis = Some(Default::default());
-        m.thermal_drift = Some(Default::default());
-        m.crosstalk = Some(Default::default());
-        m.scan_skew = Some(Default::default());
+        let m = SensorModel {
+            creep: Some(Default::default()),
+            hysteresis: Some(Default::default()),
+            thermal_drift: Some(Default::default()),
+            crosstalk: Some(Default::default()),
+            scan_skew: Some(Default::default()),
+            ..SensorModel::default()
+        };
         let s = Scenario::demo(30.0, 5);
         let a = run(&m, &s, 800);
         let b = run(&m, &s, 800);
