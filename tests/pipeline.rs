@@ -236,3 +236,88 @@ fn pipeline_streams_tracks_force_hot_reloads_and_shuts_down_clean() {
     taxel_runtime::ipc::release_prefix(&prefix).expect("release");
     assert_eq!(shm_files(&prefix), Vec::<String>::new());
 }
+
+#[test]
+fn late_calibrator_gets_the_latest_curvature_from_history() {
+    let prefix = unique_prefix("h");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cal = dir.path().join("cal.toml");
+    std::fs::write(&cal, SIM_CAL).expect("write calibration");
+    let scenario = dir.path().join("scenario.toml");
+    // One baseline at the start, then the sensor stays loaded: no new estimate is published.
+    std::fs::write(
+        &scenario,
+        "rate_hz = 200\nmounting = { curvature_m1 = 30 }\n[[step]]\nkind = \"rest\"\nduration_s = 1.0\n[[step]]\nkind = \"ramp\"\nforce_n = 5\nduration_s = 0.3\n[[step]]\nkind = \"rest\"\nduration_s = 30\n",
+    )
+    .expect("write scenario");
+    let rec = dir.path().join("late.taxrec");
+    let (cal_s, scen_s, rec_s) = (
+        cal.display().to_string(),
+        scenario.display().to_string(),
+        rec.display().to_string(),
+    );
+    let limit = Duration::from_secs(20);
+    let mut estimator = spawn(
+        "estimator",
+        &prefix,
+        &["estimator", "run", "--sensor", "s0", "--curvature-m1", "30"],
+    );
+    estimator.wait_for("estimator ready", limit);
+    let mut publisher = spawn(
+        "publisher",
+        &prefix,
+        &["publisher", "--sensor", "s0", "sim", "--scenario", &scen_s],
+    );
+    estimator.wait_for("first no-load baseline", limit);
+    // Wait until the press is on, then start the consumers.
+    std::thread::sleep(Duration::from_millis(1500));
+    let mut logger = spawn(
+        "logger",
+        &prefix,
+        &["logger", "record", "--sensor", "s0", "--out", &rec_s],
+    );
+    logger.wait_for("logger ready", limit);
+    let mut calibrator = spawn(
+        "calibrator",
+        &prefix,
+        &[
+            "calibrator",
+            "run",
+            "--sensor",
+            "s0",
+            "--calibration",
+            &cal_s,
+        ],
+    );
+    calibrator.wait_for("calibrator ready", limit);
+    std::thread::sleep(Duration::from_secs(2));
+    for p in [&calibrator, &logger, &publisher, &estimator] {
+        p.sigint();
+    }
+    for p in [&mut calibrator, &mut logger, &mut publisher, &mut estimator] {
+        let st = p.wait_exit(limit);
+        assert!(st.success(), "{} exited with {st}", p.name);
+    }
+    let forces: Vec<(u32, f32, f32)> = RecordFileReader::open(&rec)
+        .expect("record file")
+        .filter_map(|r| match r {
+            Record::Force {
+                flags,
+                total_force_n,
+                curvature_m1,
+                ..
+            } => Some((flags, total_force_n, curvature_m1)),
+            _ => None,
+        })
+        .collect();
+    assert!(forces.len() > 200, "{} force samples", forces.len());
+    let no_base = forces
+        .iter()
+        .filter(|f| f.0 & taxel_msgs::force_flags::NO_BASELINE != 0)
+        .count();
+    // At 200 Hz, 40 samples = 200 ms: the estimate must arrive within two estimator ticks.
+    assert!(no_base <= 40, "{no_base} samples without a baseline");
+    let last = forces.last().expect("samples");
+    assert_eq!(last.2, 30.0, "curvature from the estimator's history");
+    assert!((last.1 - 5.0).abs() < 0.6, "force {} N", last.1);
+}

@@ -198,6 +198,12 @@ pub fn run(
                     }
                 }
                 if id.has_event_from(&raw_guard) {
+                    // History for a late joiner arrives without a wake-up: look each time.
+                    match curv.poll_latest() {
+                        Ok(Some(est)) => cal.set_curvature(&est),
+                        Ok(None) => {}
+                        Err(e) => failure = Some(e.into()),
+                    }
                     let r = raw.drain(|frame| {
                         if let Some(l) = watcher.try_next() {
                             info!(

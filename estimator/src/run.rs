@@ -37,7 +37,14 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
     let mut summary = Summary::default();
     let mut failure: Option<anyhow::Error> = None;
     info!(sensor = %cfg.sensor, curvature_m1 = cfg.curvature_m1, "estimator ready (configured curvature)");
+    let mut last_update = std::time::Instant::now();
     while !shutdown.requested() && failure.is_none() {
+        // Late joiners (a restarted calibrator) get the latest estimate within ~100 ms, even
+        // while the sensor is loaded and no new baseline is published.
+        if summary.estimates > 0 && last_update.elapsed() >= ipc::TICK {
+            out.update_connections()?;
+            last_update = std::time::Instant::now();
+        }
         ws.wait_and_process_once_with_timeout(
             |id| {
                 if id.has_event_from(&guard) {

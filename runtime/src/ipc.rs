@@ -179,6 +179,19 @@ impl<T: Debug + ZeroCopySend + Copy + 'static> StreamPublisher<T> {
         Ok(n)
     }
 
+    /// Connects subscribers that joined since the last send and hands them the history now
+    /// (iceoryx2 otherwise delivers it with the next send), then wakes them.
+    pub fn update_connections(&self) -> Result<(), IpcError> {
+        use iceoryx2::port::update_connections::UpdateConnections;
+        self.publisher
+            .update_connections()
+            .map_err(|e| err(format!("update connections on {}", self.name), e))?;
+        self.notifier
+            .notify()
+            .map_err(|e| err(format!("notify on {}", self.name), e))?;
+        Ok(())
+    }
+
     pub fn name(&self) -> &str {
         &self.name
     }
@@ -221,6 +234,19 @@ impl<T: Debug + ZeroCopySend + Copy + 'static> StreamSubscriber<T> {
         let mut last = None;
         self.drain(|v| last = Some(*v))?;
         Ok(last)
+    }
+
+    /// Like [`StreamSubscriber::latest`] but without touching the wake-up listener: a cheap
+    /// check for samples that arrive without a notification (history for a late joiner).
+    pub fn poll_latest(&self) -> Result<Option<T>, IpcError> {
+        let mut last = None;
+        loop {
+            match self.subscriber.receive() {
+                Ok(Some(sample)) => last = Some(*sample.payload()),
+                Ok(None) => return Ok(last),
+                Err(e) => return Err(err(format!("receive on {}", self.name), e)),
+            }
+        }
     }
 
     pub fn name(&self) -> &str {
