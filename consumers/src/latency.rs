@@ -129,5 +129,13 @@ fn run(a: Args) -> Result<(), Failure> {
             h.max_us()
         );
     }
+    if seq.received == 0 {
+        return Err(Failure::runtime(anyhow::anyhow!(
+            "no samples on taxel/{}/{} under prefix {:?} in {secs:.1} s: unknown sensor, or its pipeline is not running",
+            a.sensor,
+            a.stream,
+            a.common.prefix
+        )));
+    }
     Ok(())
 }

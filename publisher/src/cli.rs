@@ -54,6 +54,12 @@ pub struct SimArgs {
     /// Curvature of the initial mounting in 1/m (overrides the scenario's).
     #[arg(long)]
     pub curvature_m1: Option<f64>,
+    /// Rows of the simulated array, 1..=32 (overrides the model's).
+    #[arg(long)]
+    pub rows: Option<usize>,
+    /// Columns of the simulated array, 1..=32 (overrides the model's).
+    #[arg(long)]
+    pub cols: Option<usize>,
     /// Write the frames to this recording CSV (.csv or .csv.gz) as fast as possible instead of
     /// publishing them (a repeating scenario needs --seconds).
     #[arg(long)]
@@ -90,10 +96,16 @@ fn read_toml<T>(
 }
 
 fn sim_source(a: &SimArgs, seconds: Option<f64>) -> anyhow::Result<SimSource> {
-    let model = match &a.model {
+    let mut model = match &a.model {
         Some(p) => read_toml(p, SensorModel::from_toml_str)?,
         None => SensorModel::default(),
     };
+    if let Some(r) = a.rows {
+        model.rows = r;
+    }
+    if let Some(c) = a.cols {
+        model.cols = c;
+    }
     let mut scenario = match &a.scenario {
         Some(p) => read_toml(p, Scenario::from_toml_str)?,
         None => Scenario::demo(0.0, 1),

@@ -554,6 +554,22 @@ mod tests {
     }
 
     #[test]
+    fn documented_example_and_shipped_scenarios_compile() {
+        let doc = include_str!("../../docs/sim.md");
+        let start = doc
+            .find("```toml\nname = \"example\"")
+            .expect("example in docs/sim.md")
+            + 8;
+        let end = start + doc[start..].find("```").expect("end of example");
+        let s = Scenario::from_toml_str(&doc[start..end]).expect("documented example parses");
+        let tl = Timeline::compile(&s, 4, 4).expect("documented example is valid");
+        assert_eq!(tl.mounting(1e9).1, 1, "one remount");
+        let sweep = include_str!("../../scenarios/calibration-sweep.toml");
+        let s = Scenario::from_toml_str(sweep).expect("sweep parses");
+        Timeline::compile(&s, 4, 4).expect("sweep is valid");
+    }
+
+    #[test]
     fn scenario_toml_round_trip() {
         let s = Scenario::demo(40.0, 3);
         let text = toml::to_string(&s).expect("serializes");

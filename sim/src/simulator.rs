@@ -468,6 +468,27 @@ mod tests {
     }
 
     #[test]
+    fn every_geometry_from_1x1_to_32x32_runs() {
+        for (rows, cols) in [(1, 1), (1, 8), (3, 5), (32, 32)] {
+            let m = SensorModel {
+                rows,
+                cols,
+                ..quiet_model()
+            };
+            let frames = run(&m, &ramp(20.0), 300);
+            let (truth, last) = &frames[299];
+            assert_eq!(last.len(), rows * cols);
+            let first = &frames[0].1;
+            let moved: f32 = last.iter().zip(first).map(|(a, b)| a - b).sum();
+            assert!(
+                moved > 10.0,
+                "{rows}x{cols}: {moved} counts at {} N",
+                truth.force_n
+            );
+        }
+    }
+
+    #[test]
     fn rail_clipping_pins_the_top_code() {
         let mut m = quiet_model();
         m.material.r_floor_ohm = 0.0;
