@@ -69,6 +69,16 @@ fn bad_input_is_refused_with_a_named_reason() {
     );
     assert_config_error(&["demo", "--sensors", "0"], "--sensors");
     assert_config_error(&["control", "--deadline-ms=-1"], "--deadline-ms");
+    // A sensor nobody publishes: the probe says so and fails instead of printing empty numbers.
+    let (code, _, err) = run(
+        &unique_prefix("u"),
+        &["latency", "--sensor", "nosuch", "--seconds", "0.3"],
+    );
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("taxel/nosuch/force") && err.contains("unknown sensor"),
+        "{err}"
+    );
     // Unknown flags and subcommands are usage errors (clap exits 2 too).
     assert_config_error(&["publisher", "--frobnicate"], "--frobnicate");
 }

@@ -36,7 +36,12 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
     let mut est = CurvatureEstimate::ZERO;
     let mut summary = Summary::default();
     let mut failure: Option<anyhow::Error> = None;
-    info!(sensor = %cfg.sensor, curvature_m1 = cfg.curvature_m1, "estimator ready (configured curvature)");
+    info!(
+        sensor = %cfg.sensor,
+        curvature_m1 = cfg.curvature_m1,
+        detector = ?cfg.detector,
+        "estimator ready (configured curvature)"
+    );
     let mut last_update = std::time::Instant::now();
     while !shutdown.requested() && failure.is_none() {
         // Late joiners (a restarted calibrator) get the latest estimate within ~100 ms, even
