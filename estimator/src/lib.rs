@@ -5,4 +5,7 @@
 
 pub mod baseline;
 pub mod cli;
+pub mod dataset;
+pub mod features;
+pub mod model;
 pub mod run;
