@@ -2,7 +2,11 @@
 //! a window is "no load" when every node is steady (standard deviation at most `max_node_sd`)
 //! and, once a baseline is known, no node's mean has moved more than `contact_threshold` from it
 //! (so a steady press is not mistaken for a new baseline, in either direction of the reading,
-//! while slow drift is followed). The first steady window gives the first baseline.
+//! while slow drift is followed). The first steady window gives the first baseline. A steady
+//! level that differs from the baseline by more than `contact_threshold` but less than
+//! `max_rebaseline_shift` on every node, and stays for `rebaseline_s`, becomes the new baseline:
+//! the sensor was remounted (a held press moves the loaded nodes much further, and a human hand's
+//! tremor keeps it from being steady).
 
 /// Detector settings (readings in the units of the stream, ADC counts by default).
 #[derive(Debug, Clone, PartialEq)]
@@ -15,6 +19,10 @@ pub struct DetectorConfig {
     pub contact_threshold: f64,
     /// Least time between two published baselines (s).
     pub min_interval_s: f64,
+    /// How long a new steady level must last to replace the baseline (s).
+    pub rebaseline_s: f64,
+    /// Largest per-node move from the baseline that can still be a remount.
+    pub max_rebaseline_shift: f64,
 }
 
 impl Default for DetectorConfig {
@@ -24,6 +32,8 @@ impl Default for DetectorConfig {
             max_node_sd: 1.5,
             contact_threshold: 4.0,
             min_interval_s: 1.0,
+            rebaseline_s: 5.0,
+            max_rebaseline_shift: 25.0,
         }
     }
 }
@@ -40,6 +50,8 @@ impl DetectorConfig {
             (self.max_node_sd, "max_node_sd"),
             (self.contact_threshold, "contact_threshold"),
             (self.min_interval_s, "min_interval_s"),
+            (self.rebaseline_s, "rebaseline_s"),
+            (self.max_rebaseline_shift, "max_rebaseline_shift"),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} must be a finite number >= 0, got {v}"));
@@ -74,6 +86,8 @@ pub struct BaselineDetector {
     t_start_ns: u64,
     current: Option<Vec<f64>>,
     last_emit_ns: Option<u64>,
+    /// A steady level away from the baseline: its mean and when it started.
+    candidate: Option<(Vec<f64>, u64)>,
 }
 
 impl BaselineDetector {
@@ -89,6 +103,7 @@ impl BaselineDetector {
             t_start_ns: 0,
             current: None,
             last_emit_ns: None,
+            candidate: None,
         }
     }
 
@@ -133,6 +148,7 @@ impl BaselineDetector {
         }
         let m = self.count as f64;
         let mut steady = true;
+        let mut shift: f64 = 0.0;
         let mut mean = vec![0.0; self.n];
         for k in 0..self.n {
             let mu = self.sum[k] / m;
@@ -141,17 +157,39 @@ impl BaselineDetector {
                 steady = false;
             }
             if let Some(cur) = &self.current {
-                if (mu - cur[k]).abs() > self.cfg.contact_threshold {
-                    steady = false;
-                }
+                shift = shift.max((mu - cur[k]).abs());
             }
             mean[k] = mu;
         }
         let frames = self.count;
         self.restart();
         if !steady {
+            self.candidate = None;
             return None;
         }
+        if shift > self.cfg.contact_threshold {
+            // Steady but away from the baseline: a held press, or a remount.
+            if shift > self.cfg.max_rebaseline_shift {
+                self.candidate = None;
+                return None;
+            }
+            let same = self.candidate.as_ref().is_some_and(|(c, _)| {
+                c.iter()
+                    .zip(&mean)
+                    .all(|(a, b)| (a - b).abs() <= self.cfg.contact_threshold)
+            });
+            if !same {
+                self.candidate = Some((mean, self.t_start_ns));
+                return None;
+            }
+            let since = self.candidate.as_ref().map_or(t_ns, |c| c.1);
+            if (t_ns.saturating_sub(since) as f64) < self.cfg.rebaseline_s * 1e9 {
+                return None;
+            }
+            // Accepted as a new baseline: publish now regardless of the interval.
+            self.last_emit_ns = None;
+        }
+        self.candidate = None;
         let due = self
             .last_emit_ns
             .is_none_or(|t| t_ns.saturating_sub(t) as f64 >= self.cfg.min_interval_s * 1e9);
@@ -226,6 +264,37 @@ mod tests {
             assert!(d.push(s, s, &[1.0]).is_none());
         }
         assert!(d.push(19, 19, &[1.0]).is_some());
+    }
+
+    #[test]
+    fn a_remount_becomes_the_new_baseline_after_a_while_but_a_press_never_does() {
+        let mut d = BaselineDetector::new(DetectorConfig {
+            window_frames: 10,
+            min_interval_s: 0.0,
+            rebaseline_s: 1.0,
+            ..DetectorConfig::default()
+        });
+        let ms = 1_000_000u64;
+        let mut seq = 0u64;
+        let mut feed = |d: &mut BaselineDetector, levels: [f32; 2], frames: usize| {
+            let mut got = Vec::new();
+            for _ in 0..frames {
+                if let Some(b) = d.push(seq, seq * 10 * ms, &levels) {
+                    got.push(b);
+                }
+                seq += 1;
+            }
+            got
+        };
+        assert_eq!(feed(&mut d, [100.0, 100.0], 10).len(), 1);
+        // Remounted: every node 8 counts higher, steady. Not before 1 s, then yes.
+        assert!(feed(&mut d, [108.0, 108.0], 90).is_empty());
+        let new = feed(&mut d, [108.0, 108.0], 30);
+        assert!(!new.is_empty(), "remount accepted after rebaseline_s");
+        assert!((new[0].mean[0] - 108.0).abs() < 1e-9);
+        // A steady press 200 counts up on one node is never a baseline.
+        assert!(feed(&mut d, [308.0, 108.0], 500).is_empty());
+        assert!((d.current().map_or(0.0, |c| c[0]) - 108.0).abs() < 1e-9);
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! Command line of the estimator (also embedded as `taxel estimator`).
 
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
@@ -9,6 +10,9 @@ use taxel_runtime::Shutdown;
 use tracing::info;
 
 use crate::baseline::DetectorConfig;
+use crate::model::{CurvatureModel, Kind, Metrics, TrainOptions};
+use crate::synth::{Spec, World};
+use taxel_runtime::progress::Progress;
 
 /// No-load baselines and the mounting curvature of a sensor.
 #[derive(Debug, Parser)]
@@ -24,6 +28,66 @@ pub struct Args {
 pub enum Cmd {
     /// Run the estimator process for one sensor.
     Run(RunArgs),
+    /// Train a curvature model from recordings with a curvature_m1 column.
+    Train(TrainArgs),
+    /// Evaluate a curvature model on recordings (curvatures 0-80 1/m).
+    Eval(EvalArgs),
+    /// Generate a paper-like curvature dataset from the simulator.
+    Dataset(DatasetArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct TrainArgs {
+    /// Recording CSVs (.csv or .csv.gz) with curvature_m1; each trial becomes one sample.
+    #[arg(long, num_args = 1.., required = true)]
+    pub data: Vec<PathBuf>,
+    /// Output model file.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Which model: the paper's residual MLP, ridge regression, or whichever validates better.
+    #[arg(long, value_enum, default_value_t = Kind::Auto)]
+    pub model: Kind,
+    /// Seed of the split, the initialization and every random draw of training.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// MLP epochs (the paper: 500).
+    #[arg(long, default_value_t = 500)]
+    pub epochs: usize,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct EvalArgs {
+    /// Model file from `train`.
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Recording CSVs with curvature_m1.
+    #[arg(long, num_args = 1.., required = true)]
+    pub data: Vec<PathBuf>,
+    /// Print exactly one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Draw predicted vs true curvature to this file (.svg or .png).
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+}
+
+#[derive(Debug, clap::Args)]
+pub struct DatasetArgs {
+    /// Output directory (one sensorN.csv.gz per simulated sensor).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Seed of the sensors, mountings and noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Number of simulated sensors (the paper: 3).
+    #[arg(long, default_value_t = 3)]
+    pub sensors: usize,
+    /// Simulated world.
+    #[arg(long, value_enum, default_value_t = World::Paper)]
+    pub world: World,
+    /// Measurement session: the same sensors measured again (new mountings and noise).
+    #[arg(long, default_value_t = 0)]
+    pub session: u64,
 }
 
 #[derive(Debug, clap::Args)]
@@ -46,12 +110,22 @@ pub struct RunArgs {
     /// Least time between published baselines (s).
     #[arg(long, default_value_t = DetectorConfig::default().min_interval_s)]
     pub min_interval_s: f64,
+    /// A steady no-load level that differs from the current baseline for this long is taken as
+    /// a new baseline (the sensor was remounted) (s).
+    #[arg(long, default_value_t = DetectorConfig::default().rebaseline_s)]
+    pub rebaseline_s: f64,
+    /// Curvature model file (from `train`); without it the configured --curvature-m1 is used.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
 }
 
 pub fn main(args: Args) -> ExitCode {
     init_tracing(&args.common.log);
     let r = match args.cmd {
         Cmd::Run(a) => run(&args.common, a),
+        Cmd::Train(a) => train(a),
+        Cmd::Eval(a) => eval(a),
+        Cmd::Dataset(a) => dataset(a),
     };
     exit_code("taxel-estimator", r)
 }
@@ -69,19 +143,139 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
         max_node_sd: a.max_node_sd,
         contact_threshold: a.contact_threshold,
         min_interval_s: a.min_interval_s,
+        rebaseline_s: a.rebaseline_s,
+        ..DetectorConfig::default()
     };
     detector
         .validate()
         .map_err(|e| anyhow::anyhow!(e))
         .config_err()?;
+    let model = match &a.model {
+        Some(p) => Some(CurvatureModel::load(p).config_err()?),
+        None => None,
+    };
     let cfg = crate::run::Config {
         sensor: a.sensor.clone(),
         curvature_m1: a.curvature_m1,
         detector,
+        model,
     };
     let shutdown = Shutdown::install().runtime_err()?;
     let ipc = Ipc::open(&common.prefix, &format!("estimator-{}", a.sensor)).runtime_err()?;
     let s = crate::run::run(&ipc, &cfg, &shutdown).runtime_err()?;
     info!(sensor = %a.sensor, frames = s.frames, estimates = s.estimates, "estimator stopped");
+    Ok(())
+}
+
+fn paths(v: &[PathBuf]) -> Vec<String> {
+    v.iter().map(|p| p.display().to_string()).collect()
+}
+
+fn train(a: TrainArgs) -> Result<(), Failure> {
+    if a.epochs == 0 || a.epochs > 100_000 {
+        return Err(Failure::config(anyhow::anyhow!(
+            "--epochs must be 1..=100000, got {}",
+            a.epochs
+        )));
+    }
+    let samples = crate::dataset::load(&a.data).config_err()?;
+    let opts = TrainOptions {
+        kind: a.model,
+        seed: a.seed,
+        mlp: crate::model::mlp::MlpConfig {
+            epochs: a.epochs,
+            ..Default::default()
+        },
+        ..TrainOptions::default()
+    };
+    println!(
+        "training on {} samples from {} file(s), curvature {:.1}..{:.1} 1/m",
+        samples.len(),
+        a.data.len(),
+        samples.iter().map(|s| s.curvature_m1).fold(f64::INFINITY, f64::min),
+        samples.iter().map(|s| s.curvature_m1).fold(f64::NEG_INFINITY, f64::max)
+    );
+    let t0 = std::time::Instant::now();
+    let mut bar = Progress::new("training", 1);
+    let model = crate::model::train(&samples, &paths(&a.data), &opts, |done, total| {
+        bar.set_total(total as u64);
+        bar.set(done as u64);
+    })
+    .config_err()?;
+    bar.finish();
+    for (name, m) in &model.training.candidates {
+        println!(
+            "validation {name:>5}: R^2 {:.3}, MAE {:.2} 1/m, RMSE {:.2} 1/m (n = {})",
+            m.r2, m.mae_m1, m.rmse_m1, m.n
+        );
+    }
+    model.save(&a.out).runtime_err()?;
+    println!(
+        "kept {} (version {:08x}), refitted on all {} samples in {:.1} s -> {}",
+        model.kind,
+        model.model_version,
+        samples.len(),
+        t0.elapsed().as_secs_f64(),
+        a.out.display()
+    );
+    Ok(())
+}
+
+/// Metrics of a model on recordings, restricted to 0-80 1/m.
+pub fn evaluate(model: &CurvatureModel, data: &[PathBuf]) -> Result<(Metrics, Vec<(f64, f64)>), Failure> {
+    let mut samples = crate::dataset::load(data).config_err()?;
+    samples.retain(|s| (0.0..=80.0 + 1e-9).contains(&s.curvature_m1));
+    if let Some(s) = samples.first() {
+        model
+            .check_nodes(&data[0].display().to_string(), s.baseline.len())
+            .config_err()?;
+    }
+    let pred = model.predict_samples(&samples);
+    let truth: Vec<f64> = samples.iter().map(|s| s.curvature_m1).collect();
+    let pairs = truth.iter().copied().zip(pred.iter().copied()).collect();
+    Ok((Metrics::of(&pred, &truth), pairs))
+}
+
+fn eval(a: EvalArgs) -> Result<(), Failure> {
+    let model = CurvatureModel::load(&a.model).config_err()?;
+    let (m, pairs) = evaluate(&model, &a.data)?;
+    if let Some(p) = &a.plot {
+        crate::plot::predicted_vs_true(p, &pairs, &m, &model.kind).runtime_err()?;
+    }
+    if a.json {
+        println!(
+            "{{\"r2\": {:.6}, \"mae_m1\": {:.6}, \"rmse_m1\": {:.6}, \"n\": {}}}",
+            m.r2, m.mae_m1, m.rmse_m1, m.n
+        );
+    } else {
+        println!(
+            "{} model {:08x} on {} sample(s), 0-80 1/m: R^2 {:.3}, MAE {:.2} 1/m, RMSE {:.2} 1/m",
+            model.kind, model.model_version, m.n, m.r2, m.mae_m1, m.rmse_m1
+        );
+        if let Some(p) = &a.plot {
+            println!("plot: {}", p.display());
+        }
+    }
+    Ok(())
+}
+
+fn dataset(a: DatasetArgs) -> Result<(), Failure> {
+    if !(1..=100).contains(&a.sensors) {
+        return Err(Failure::config(anyhow::anyhow!(
+            "--sensors must be 1..=100, got {}",
+            a.sensors
+        )));
+    }
+    let spec = Spec {
+        sensors: a.sensors,
+        session: a.session,
+        ..Spec::paper(a.world, a.seed)
+    };
+    let mut bar = Progress::new("simulating sensors", a.sensors as u64);
+    let files = crate::synth::generate(&spec, &a.out, |d, _| bar.set(d as u64)).runtime_err()?;
+    bar.finish();
+    for f in &files {
+        println!("{}", f.display());
+    }
     Ok(())
 }

@@ -8,4 +8,6 @@ pub mod cli;
 pub mod dataset;
 pub mod features;
 pub mod model;
+pub mod plot;
 pub mod run;
+pub mod synth;

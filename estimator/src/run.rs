@@ -1,5 +1,7 @@
-//! The estimator process loop: wakes on raw frames, feeds the baseline detector, publishes a
-//! `CurvatureEstimate` for every accepted no-load window.
+//! The estimator process loop: wakes on raw frames, feeds the baseline detector, and for every
+//! accepted no-load window publishes a `CurvatureEstimate` with that baseline and the curvature
+//! predicted by the model (or the configured one). While the sensor is loaded no window is
+//! accepted, so the last estimate holds; when it is unloaded again, it re-estimates.
 
 use iceoryx2::prelude::*;
 use taxel_msgs::{curvature_flags, CurvatureEstimate, RawFrame, Stream};
@@ -8,6 +10,7 @@ use taxel_runtime::Shutdown;
 use tracing::info;
 
 use crate::baseline::{BaselineDetector, DetectorConfig};
+use crate::model::CurvatureModel;
 
 /// Estimator settings.
 #[derive(Debug, Clone)]
@@ -16,6 +19,8 @@ pub struct Config {
     /// Curvature of the mounting surface to publish (1/m).
     pub curvature_m1: f64,
     pub detector: DetectorConfig,
+    /// Learned curvature model; None publishes `curvature_m1` flagged as configured.
+    pub model: Option<CurvatureModel>,
 }
 
 /// What a run did.
@@ -36,11 +41,14 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
     let mut est = CurvatureEstimate::ZERO;
     let mut summary = Summary::default();
     let mut failure: Option<anyhow::Error> = None;
+    let mut predictor = cfg.model.as_ref().map(|m| m.predictor());
+    let mut checked = false;
     info!(
         sensor = %cfg.sensor,
         curvature_m1 = cfg.curvature_m1,
         detector = ?cfg.detector,
-        "estimator ready (configured curvature)"
+        model = cfg.model.as_ref().map(|m| format!("{} {:08x}", m.kind, m.model_version)),
+        "estimator ready"
     );
     let mut last_update = std::time::Instant::now();
     while !shutdown.requested() && failure.is_none() {
@@ -55,6 +63,17 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
                 if id.has_event_from(&guard) {
                     let r = raw.drain(|frame| {
                         summary.frames += 1;
+                        if !checked {
+                            checked = true;
+                            if let Some(m) = &cfg.model {
+                                if let Err(e) = m.check_nodes("curvature model", frame.n_nodes()) {
+                                    failure = Some(e.into());
+                                }
+                            }
+                        }
+                        if failure.is_some() {
+                            return;
+                        }
                         let Some(b) = det.push(frame.seq, frame.t_capture_ns, frame.nodes()) else {
                             return;
                         };
@@ -65,17 +84,38 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
                         est.sensor = frame.sensor;
                         est.rows = frame.rows;
                         est.cols = frame.cols;
-                        est.curvature_m1 = cfg.curvature_m1 as f32;
-                        est.curvature_sd_m1 = 0.0;
-                        est.model_version = 0;
-                        est.flags = curvature_flags::CONFIGURED;
+                        match (predictor.as_mut(), &cfg.model) {
+                            (Some(p), Some(m)) => {
+                                let pr = p.predict(&b.mean);
+                                est.curvature_m1 = pr.curvature_m1.max(0.0) as f32;
+                                est.curvature_sd_m1 = pr.sd_m1 as f32;
+                                est.model_version = m.model_version;
+                                est.flags = curvature_flags::ESTIMATED;
+                                if pr.out_of_range {
+                                    est.flags |= curvature_flags::OUT_OF_RANGE;
+                                }
+                            }
+                            _ => {
+                                est.curvature_m1 = cfg.curvature_m1 as f32;
+                                est.curvature_sd_m1 = 0.0;
+                                est.model_version = 0;
+                                est.flags = curvature_flags::CONFIGURED;
+                            }
+                        }
                         est.window_frames = b.frames as u32;
                         est.estimate_index = summary.estimates;
                         for (d, s) in est.baseline.iter_mut().zip(&b.mean) {
                             *d = *s as f32;
                         }
                         if summary.estimates == 1 {
-                            info!(sensor = %cfg.sensor, "first no-load baseline measured");
+                            info!(
+                                sensor = %cfg.sensor,
+                                curvature_m1 = est.curvature_m1,
+                                sd_m1 = est.curvature_sd_m1,
+                                "first no-load baseline measured"
+                            );
+                        } else {
+                            tracing::debug!(curvature_m1 = est.curvature_m1, "new estimate");
                         }
                         if let Err(e) = out.send(&est) {
                             failure = Some(e.into());

@@ -23,6 +23,11 @@ impl Progress {
         }
     }
 
+    /// Changes the total (when it becomes known late).
+    pub fn set_total(&mut self, total: u64) {
+        self.total = total;
+    }
+
     /// Reports that `done` of `total` units are finished.
     pub fn set(&mut self, done: u64) {
         if !self.enabled {

@@ -84,6 +84,10 @@ pub struct Spread {
     pub build_gain_log_sd: f64,
     /// Whole-build unloaded-conductance spread (log sd), one draw per seed; builds differ 2-3x.
     pub build_g0_log_sd: f64,
+    /// Seed of the spread draws: the identity of one physical sensor. When absent the
+    /// scenario's seed is used, so every scenario seed is another sensor.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub build_seed: Option<u64>,
 }
 
 impl Default for Spread {
@@ -93,6 +97,7 @@ impl Default for Spread {
             node_g0_log_sd: 0.06,
             build_gain_log_sd: 0.0,
             build_g0_log_sd: 0.0,
+            build_seed: None,
         }
     }
 }
@@ -118,6 +123,11 @@ pub struct Curvature {
     pub pattern_quad_m: f64,
     /// Weight `l` of the across-bend linear pattern (m).
     pub pattern_lin_m: f64,
+    /// Relative scatter (1 sd) of the curvature the sheet actually takes at each mounting: how
+    /// well it conforms to the fixture (0 = perfectly).
+    pub mount_curvature_scatter: f64,
+    /// Per-node baseline scatter at each mounting (log sd): tape tension, thread seating.
+    pub mount_baseline_log_sd: f64,
 }
 
 impl Default for Curvature {
@@ -129,6 +139,8 @@ impl Default for Curvature {
             baseline_g2_m2: 0.0,
             pattern_quad_m: 0.004,
             pattern_lin_m: 0.002,
+            mount_curvature_scatter: 0.0,
+            mount_baseline_log_sd: 0.0,
         }
     }
 }
@@ -367,6 +379,14 @@ impl SensorModel {
         ] {
             check(v.is_finite(), &format!("{name} must be finite"))?;
         }
+        check(
+            finite_nonneg(c.mount_curvature_scatter) && c.mount_curvature_scatter <= 1.0,
+            "curvature.mount_curvature_scatter must be in 0..=1",
+        )?;
+        check(
+            finite_nonneg(c.mount_baseline_log_sd) && c.mount_baseline_log_sd <= 1.0,
+            "curvature.mount_baseline_log_sd must be in 0..=1",
+        )?;
         if let Some(cr) = &self.creep {
             check(
                 cr.amplitudes.len() == cr.tau_s.len() && !cr.tau_s.is_empty(),

@@ -12,6 +12,8 @@ const STREAM_SPREAD: u64 = 1;
 const STREAM_NOISE: u64 = 2;
 const STREAM_TREMOR: u64 = 3;
 const STREAM_CROSSTALK: u64 = 4;
+/// Per-trial mounting scatter uses streams STREAM_MOUNT + trial.
+const STREAM_MOUNT: u64 = 1000;
 
 /// What the simulator applied to produce one frame (the ground truth of the recording schema).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -36,6 +38,7 @@ pub struct Simulator {
     n: usize,
     dt_s: f64,
     frame: u64,
+    seed: u64,
     node_gain: Vec<f64>,
     node_g0: Vec<f64>,
     vos_v: Vec<f64>,
@@ -45,7 +48,8 @@ pub struct Simulator {
     hyst: Vec<f64>,
     t_sensor_c: Option<f64>,
     contact: Option<(Contact, Vec<f64>)>,
-    mounting: Option<(Mounting, Vec<f64>)>,
+    /// Current mounting, its trial, the per-node baseline factors and the effective curvature.
+    mounting: Option<(Mounting, u32, Vec<f64>, f64)>,
     g_s: Vec<f64>,
     vout_v: Vec<f64>,
 }
@@ -78,7 +82,7 @@ impl Simulator {
         let timeline = Timeline::compile(scenario, model.rows, model.cols)?;
         let n = model.rows * model.cols;
         let seed = scenario.seed;
-        let mut spread = Rng::new(seed, STREAM_SPREAD);
+        let mut spread = Rng::new(model.spread.build_seed.unwrap_or(seed), STREAM_SPREAD);
         let s = &model.spread;
         let build_gain = s.build_gain_log_sd * spread.normal();
         let build_g0 = s.build_g0_log_sd * spread.normal();
@@ -88,7 +92,7 @@ impl Simulator {
             node_gain.push((build_gain + s.node_gain_log_sd * spread.normal()).exp());
             node_g0.push((build_g0 + s.node_g0_log_sd * spread.normal()).exp());
         }
-        let mut xt = Rng::new(seed, STREAM_CROSSTALK);
+        let mut xt = Rng::new(model.spread.build_seed.unwrap_or(seed), STREAM_CROSSTALK);
         let vos_max = model.crosstalk.as_ref().map_or(0.0, |c| c.vos_max_v);
         let vos_v = (0..model.cols)
             .map(|_| vos_max * (2.0 * xt.uniform() - 1.0))
@@ -109,6 +113,7 @@ impl Simulator {
             n,
             dt_s: 1.0 / scenario.rate_hz,
             frame: 0,
+            seed,
             node_gain,
             node_g0,
             vos_v,
@@ -198,10 +203,23 @@ impl Simulator {
         let t = self.frame as f64 * self.dt_s;
         self.frame += 1;
         let (mounting, trial) = self.timeline.mounting(t);
-        if self.mounting.as_ref().map(|m| m.0) != Some(mounting) {
-            let f = self.baseline_factors(&mounting);
-            self.mounting = Some((mounting, f));
+        if self.mounting.as_ref().map(|m| (m.0, m.1)) != Some((mounting, trial)) {
+            // Each mounting conforms a little differently: scatter in the curvature the sheet
+            // actually takes and in each node's baseline, drawn per trial.
+            let c = &self.model.curvature;
+            let mut r = Rng::new(self.seed, STREAM_MOUNT + trial as u64);
+            let kappa_eff =
+                (mounting.curvature_m1 * (1.0 + c.mount_curvature_scatter * r.normal())).max(0.0);
+            let mut f = self.baseline_factors(&Mounting {
+                curvature_m1: kappa_eff,
+                ..mounting
+            });
+            for v in f.iter_mut() {
+                *v *= (c.mount_baseline_log_sd * r.normal()).exp();
+            }
+            self.mounting = Some((mounting, trial, f, kappa_eff));
         }
+        let kappa_eff = self.mounting.as_ref().map_or(mounting.curvature_m1, |m| m.3);
         let contact = self.timeline.contact(t);
         if self.contact.as_ref().map(|c| c.0) != Some(contact) {
             let w = contact.weights(self.model.rows, self.model.cols);
@@ -220,7 +238,7 @@ impl Simulator {
             }
             None => 1.0,
         };
-        self.conductances(t, force_n, mounting.curvature_m1, thermal);
+        self.conductances(t, force_n, kappa_eff, thermal);
         self.readout();
         self.quantize(out);
         FrameTruth {
@@ -245,7 +263,7 @@ impl Simulator {
             None => Vec::new(),
         };
         let (weights, base) = match (&self.contact, &self.mounting) {
-            (Some(c), Some(m)) => (&c.1, &m.1),
+            (Some(c), Some(m)) => (&c.1, &m.2),
             _ => return,
         };
         for k in 0..self.n {
