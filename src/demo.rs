@@ -12,6 +12,10 @@ use crate::children::{spawn, stop_all, Proc};
 
 /// The shipped default calibration of the simulated sensor.
 const SIM_CALIBRATION: &str = include_str!("../calibrations/sim-default.toml");
+/// The shipped curvature model, trained on the simulator's paper-like dataset (seed 1).
+const CURVATURE_MODEL: &[u8] = include_bytes!("../models/curvature-default.taxcrv");
+/// Build seeds of the three sensors of that dataset: the demo's sensors are those builds.
+const DATASET_BUILDS: [u64; 3] = [1001, 1002, 1003];
 
 const FINGERS: [&str; 5] = ["thumb", "index", "middle", "ring", "little"];
 /// Mounting curvature of each fingertip of the demo glove (1/m).
@@ -102,6 +106,9 @@ fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
     }
     .map_err(|e| anyhow::anyhow!("{}: {e}", cal.display()))?;
     taxel_calibrator::calibration::Calibration::load(&cal)?;
+    let model = out.join("curvature.taxcrv");
+    std::fs::write(&model, CURVATURE_MODEL)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))?;
     let recording = out.join("demo.taxrec");
     let shutdown = Shutdown::install()?;
     let sensors = sensor_names(a.sensors);
@@ -169,8 +176,8 @@ fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
                     s("run"),
                     s("--sensor"),
                     name.clone(),
-                    s("--curvature-m1"),
-                    curvature.to_string(),
+                    s("--model"),
+                    model.display().to_string(),
                 ],
                 &a.prefix,
                 &a.log,
@@ -183,6 +190,10 @@ fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
                     s("--sensor"),
                     name.clone(),
                     s("sim"),
+                    s("--preset"),
+                    s("paper-dataset"),
+                    s("--build-seed"),
+                    DATASET_BUILDS[i % DATASET_BUILDS.len()].to_string(),
                     s("--seed"),
                     (i + 1).to_string(),
                     s("--rate-hz"),

@@ -192,8 +192,14 @@ fn train(a: TrainArgs) -> Result<(), Failure> {
         "training on {} samples from {} file(s), curvature {:.1}..{:.1} 1/m",
         samples.len(),
         a.data.len(),
-        samples.iter().map(|s| s.curvature_m1).fold(f64::INFINITY, f64::min),
-        samples.iter().map(|s| s.curvature_m1).fold(f64::NEG_INFINITY, f64::max)
+        samples
+            .iter()
+            .map(|s| s.curvature_m1)
+            .fold(f64::INFINITY, f64::min),
+        samples
+            .iter()
+            .map(|s| s.curvature_m1)
+            .fold(f64::NEG_INFINITY, f64::max)
     );
     let t0 = std::time::Instant::now();
     let mut bar = Progress::new("training", 1);
@@ -222,7 +228,10 @@ fn train(a: TrainArgs) -> Result<(), Failure> {
 }
 
 /// Metrics of a model on recordings, restricted to 0-80 1/m.
-pub fn evaluate(model: &CurvatureModel, data: &[PathBuf]) -> Result<(Metrics, Vec<(f64, f64)>), Failure> {
+pub fn evaluate(
+    model: &CurvatureModel,
+    data: &[PathBuf],
+) -> Result<(Metrics, Vec<(f64, f64)>), Failure> {
     let mut samples = crate::dataset::load(data).config_err()?;
     samples.retain(|s| (0.0..=80.0 + 1e-9).contains(&s.curvature_m1));
     if let Some(s) = samples.first() {

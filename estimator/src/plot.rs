@@ -5,7 +5,12 @@ use std::path::Path;
 use crate::model::Metrics;
 
 /// Draws predicted against true curvature with the identity line.
-pub fn predicted_vs_true(path: &Path, pairs: &[(f64, f64)], m: &Metrics, kind: &str) -> anyhow::Result<()> {
+pub fn predicted_vs_true(
+    path: &Path,
+    pairs: &[(f64, f64)],
+    m: &Metrics,
+    kind: &str,
+) -> anyhow::Result<()> {
     let title = format!(
         "{kind}: R\u{b2} {:.3}, MAE {:.2} 1/m, RMSE {:.2} 1/m (n = {})",
         m.r2, m.mae_m1, m.rmse_m1, m.n
@@ -16,7 +21,10 @@ pub fn predicted_vs_true(path: &Path, pairs: &[(f64, f64)], m: &Metrics, kind: &
         .flat_map(|p| [p.0, p.1])
         .fold(10.0f64, f64::max)
         * 1.05;
-    let lo = points.iter().flat_map(|p| [p.0, p.1]).fold(0.0f64, f64::min);
+    let lo = points
+        .iter()
+        .flat_map(|p| [p.0, p.1])
+        .fold(0.0f64, f64::min);
     taxel_plot::scatter_with_identity(
         path,
         &title,

@@ -8,16 +8,30 @@ use std::path::{Path, PathBuf};
 use taxel_formats::csv::{Columns, Row};
 use taxel_formats::RecordingWriter;
 use taxel_sim::rng::Rng;
-use taxel_sim::{Mounting, Scenario, SensorModel, Simulator, Step};
+use taxel_sim::{Mounting, Scenario, Simulator, Step};
 
-/// Which simulated world to draw from.
+/// Which simulated world to draw from (a sensor-model preset of taxel-sim).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum World {
-    /// The default sensor model with build-to-build spread and mounting scatter.
+    /// The `paper-dataset` preset: build-to-build spread and mounting scatter.
     Paper,
-    /// Another parameterisation (stronger nonlinearity, crosstalk, more noise and spread), for
-    /// checking that a training method generalizes; never used for tuning.
+    /// The `alt` preset, for checking that a training method generalizes; never for tuning.
     Alt,
+}
+
+impl World {
+    pub fn preset(self) -> &'static str {
+        match self {
+            World::Paper => "paper-dataset",
+            World::Alt => "alt",
+        }
+    }
+}
+
+/// Build seed of sensor `index` (0-based) of a dataset drawn with `seed`: the identity of
+/// that simulated sensor, for the publisher's `--build-seed`.
+pub fn build_seed(seed: u64, index: usize) -> u64 {
+    seed.wrapping_mul(1000).wrapping_add(index as u64 + 1)
 }
 
 /// Dataset shape.
@@ -52,39 +66,20 @@ impl Spec {
     }
 }
 
-/// The sensor model of a world.
-pub fn world_model(world: World) -> SensorModel {
-    let mut m = SensorModel::default();
-    m.spread.build_g0_log_sd = 0.25;
-    m.spread.build_gain_log_sd = 0.1;
-    m.curvature.mount_curvature_scatter = 0.04;
-    m.curvature.mount_baseline_log_sd = 0.01;
-    if world == World::Alt {
-        m.readout.noise_counts = 0.8;
-        m.spread.node_g0_log_sd = 0.1;
-        m.spread.build_g0_log_sd = 0.35;
-        m.material.g0_us = 35.0;
-        m.curvature.baseline_g1_m = 0.003;
-        m.curvature.baseline_g1_flipped_m = 0.0045;
-        m.curvature.baseline_g2_m2 = 4e-5;
-        m.curvature.pattern_quad_m = -0.003;
-        m.curvature.pattern_lin_m = 0.0035;
-        m.curvature.mount_curvature_scatter = 0.06;
-        m.curvature.mount_baseline_log_sd = 0.015;
-        m.crosstalk = Some(Default::default());
-    }
-    m
-}
-
 /// Writes one CSV per sensor into `dir`; returns their paths.
-pub fn generate(spec: &Spec, dir: &Path, mut progress: impl FnMut(usize, usize)) -> anyhow::Result<Vec<PathBuf>> {
+pub fn generate(
+    spec: &Spec,
+    dir: &Path,
+    mut progress: impl FnMut(usize, usize),
+) -> anyhow::Result<Vec<PathBuf>> {
     std::fs::create_dir_all(dir)?;
-    let mut model = world_model(spec.world);
+    let mut model = taxel_sim::presets::preset(spec.world.preset())
+        .ok_or_else(|| anyhow::anyhow!("unknown preset {}", spec.world.preset()))?;
     let n = model.rows * model.cols;
     let mut paths = Vec::new();
     let per_sensor = spec.curvatures_m1.len() * spec.baselines;
     for s in 0..spec.sensors {
-        let build = spec.seed.wrapping_mul(1000).wrapping_add(s as u64 + 1);
+        let build = build_seed(spec.seed, s);
         model.spread.build_seed = Some(build);
         let seed = build.wrapping_add(spec.session.wrapping_mul(7919));
         let mut rng = Rng::new(seed, 501);

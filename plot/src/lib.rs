@@ -98,7 +98,10 @@ where
         let color = COLORS[i % COLORS.len()];
         let anno = match s.mark {
             Mark::Line => chart
-                .draw_series(LineSeries::new(s.points.iter().copied(), color.stroke_width(2)))
+                .draw_series(LineSeries::new(
+                    s.points.iter().copied(),
+                    color.stroke_width(2),
+                ))
                 .map_err(|e| anyhow::anyhow!("{e:?}"))?,
             Mark::Points => chart
                 .draw_series(
@@ -194,6 +197,9 @@ mod tests {
         assert!(svg.contains("x (1/m)") && svg.contains("samples"));
         let png = std::fs::read(dir.path().join("a.png")).expect("png");
         assert_eq!(&png[..4], b"\x89PNG");
-        assert!(scatter_with_identity(&dir.path().join("a.jpg"), "t", "x", "y", &pts, (0.0, 1.0)).is_err());
+        assert!(
+            scatter_with_identity(&dir.path().join("a.jpg"), "t", "x", "y", &pts, (0.0, 1.0))
+                .is_err()
+        );
     }
 }

@@ -43,8 +43,15 @@ pub struct SimArgs {
     #[arg(long)]
     pub scenario: Option<PathBuf>,
     /// Sensor model TOML (default: the built-in model).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "preset")]
     pub model: Option<PathBuf>,
+    /// A named sensor model: default, paper-dataset (build spread, mounting scatter) or alt.
+    #[arg(long)]
+    pub preset: Option<String>,
+    /// Identity of the simulated sensor: seed of its part-to-part spread (default: the
+    /// scenario seed). Sensor i of `taxel estimator dataset --seed S` is build S * 1000 + i + 1.
+    #[arg(long)]
+    pub build_seed: Option<u64>,
     /// Seed of every random draw (overrides the scenario's).
     #[arg(long)]
     pub seed: Option<u64>,
@@ -96,10 +103,19 @@ fn read_toml<T>(
 }
 
 fn sim_source(a: &SimArgs, seconds: Option<f64>) -> anyhow::Result<SimSource> {
-    let mut model = match &a.model {
-        Some(p) => read_toml(p, SensorModel::from_toml_str)?,
-        None => SensorModel::default(),
+    let mut model = match (&a.model, &a.preset) {
+        (Some(p), _) => read_toml(p, SensorModel::from_toml_str)?,
+        (None, Some(name)) => taxel_sim::presets::preset(name).ok_or_else(|| {
+            anyhow::anyhow!(
+                "--preset {name:?} is unknown: use one of {}",
+                taxel_sim::presets::NAMES.join(", ")
+            )
+        })?,
+        (None, None) => SensorModel::default(),
     };
+    if let Some(b) = a.build_seed {
+        model.spread.build_seed = Some(b);
+    }
     if let Some(r) = a.rows {
         model.rows = r;
     }

@@ -6,6 +6,7 @@
 //! model, scenario and seed always give the same frames. See docs/sim.md for every parameter.
 
 pub mod model;
+pub mod presets;
 pub mod rng;
 pub mod scenario;
 pub mod simulator;

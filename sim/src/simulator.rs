@@ -219,7 +219,10 @@ impl Simulator {
             }
             self.mounting = Some((mounting, trial, f, kappa_eff));
         }
-        let kappa_eff = self.mounting.as_ref().map_or(mounting.curvature_m1, |m| m.3);
+        let kappa_eff = self
+            .mounting
+            .as_ref()
+            .map_or(mounting.curvature_m1, |m| m.3);
         let contact = self.timeline.contact(t);
         if self.contact.as_ref().map(|c| c.0) != Some(contact) {
             let w = contact.weights(self.model.rows, self.model.cols);

@@ -575,20 +575,42 @@ pub struct MlpF32 {
     c: Vec<f32>,
 }
 
-#[inline]
-fn dot(w: &[f32], x: &[f32]) -> f32 {
-    let mut acc = [0.0f32; 8];
-    let chunks = w.len() / 8;
-    for k in 0..chunks {
-        for l in 0..8 {
-            acc[l] += w[k * 8 + l] * x[k * 8 + l];
+/// Dot product in 16 independent lanes (vectorizes without bounds checks).
+#[inline(always)]
+fn dot_lanes(w: &[f32], x: &[f32]) -> f32 {
+    let mut acc = [0.0f32; 16];
+    let wc = w.chunks_exact(16);
+    let xc = x.chunks_exact(16);
+    let (wr, xr) = (wc.remainder(), xc.remainder());
+    for (a, b) in wc.zip(xc) {
+        for l in 0..16 {
+            acc[l] += a[l] * b[l];
         }
     }
     let mut s: f32 = acc.iter().sum();
-    for k in chunks * 8..w.len() {
-        s += w[k] * x[k];
+    for (a, b) in wr.iter().zip(xr) {
+        s += a * b;
     }
     s
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn dot_avx2(w: &[f32], x: &[f32]) -> f32 {
+    dot_lanes(w, x)
+}
+
+#[inline]
+fn dot(w: &[f32], x: &[f32]) -> f32 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU supports the features the function was compiled for.
+            return unsafe { dot_avx2(w, x) };
+        }
+    }
+    dot_lanes(w, x)
 }
 
 fn silu32(x: f32) -> f32 {

@@ -278,22 +278,37 @@ pub fn train(
         k => vec![k],
     };
     let epochs = opts.mlp.epochs;
-    let mlp_runs = kinds.iter().filter(|k| **k == Kind::Mlp).count();
-    let total = epochs * mlp_runs * 2;
-    let mut done = 0;
-    let mut candidates = Vec::new();
-    for &k in &kinds {
-        let r = fit_one(k, &tr, opts, &mut |e| progress(done + e, total));
-        if k == Kind::Mlp {
-            done += epochs;
+    let all = prepare(&raw, &labels);
+    // The MLP's final refit on every sample runs on the second core while the candidates are
+    // validated (it is discarded if ridge validates better).
+    let want_final_mlp = kinds.contains(&Kind::Mlp);
+    let total = epochs * (kinds.iter().filter(|k| **k == Kind::Mlp).count() + 1);
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    // Epochs finished by either thread; only this thread reports progress.
+    let done = AtomicUsize::new(0);
+    let (candidates, final_mlp) = std::thread::scope(|scope| {
+        let fin = want_final_mlp.then(|| {
+            scope.spawn(|| {
+                fit_one(Kind::Mlp, &all, opts, &mut |_| {
+                    done.fetch_add(1, Ordering::Relaxed);
+                })
+            })
+        });
+        let mut candidates = Vec::new();
+        for &k in &kinds {
+            let r = fit_one(k, &tr, opts, &mut |_| {
+                let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+                progress(d.min(total), total);
+            });
+            let pred: Vec<f64> = predict_std(&r, &val_x)
+                .iter()
+                .map(|v| v * tr.y_sd + tr.y_mean)
+                .collect();
+            let name = if k == Kind::Mlp { "mlp" } else { "ridge" };
+            candidates.push((name.to_string(), Metrics::of(&pred, &val_y)));
         }
-        let pred: Vec<f64> = predict_std(&r, &val_x)
-            .iter()
-            .map(|v| v * tr.y_sd + tr.y_mean)
-            .collect();
-        let name = if k == Kind::Mlp { "mlp" } else { "ridge" };
-        candidates.push((name.to_string(), Metrics::of(&pred, &val_y)));
-    }
+        (candidates, fin.and_then(|h| h.join().ok()))
+    });
     let (best_i, _) = candidates
         .iter()
         .enumerate()
@@ -301,9 +316,11 @@ pub fn train(
         .unwrap_or((0, &candidates[0]));
     let best_kind = kinds[best_i];
     let validation = candidates[best_i].1;
-    // Refit the chosen model on every sample.
-    let all = prepare(&raw, &labels);
-    let regressor = fit_one(best_kind, &all, opts, &mut |e| progress(done + e, total));
+    // The chosen model refitted on every sample.
+    let regressor = match (best_kind, final_mlp) {
+        (Kind::Mlp, Some(r)) => r,
+        (k, _) => fit_one(k, &all, opts, &mut |_| {}),
+    };
     progress(total, total);
     let d = raw[0].len();
     let mut fmin = vec![f64::INFINITY; d];
