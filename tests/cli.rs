@@ -69,6 +69,30 @@ fn bad_input_is_refused_with_a_named_reason() {
     );
     assert_config_error(&["demo", "--sensors", "0"], "--sensors");
     assert_config_error(&["control", "--deadline-ms=-1"], "--deadline-ms");
+    // Curvature models: another layout, a foreign file, a missing one.
+    let one_node = dir.path().join("one.csv");
+    std::fs::write(&one_node, "t_s,n0,curvature_m1\n0,100,0\n1,101,10\n").expect("write");
+    let o = one_node.display().to_string();
+    let model = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/models/curvature-default.taxcrv"
+    );
+    assert_config_error(
+        &["estimator", "eval", "--model", model, "--data", &o],
+        "expects 16 nodes",
+    );
+    assert_config_error(
+        &["estimator", "eval", "--model", &g, "--data", &o],
+        "not a curvature model",
+    );
+    assert_config_error(
+        &["estimator", "run", "--model", "/no/model.taxcrv"],
+        "/no/model.taxcrv",
+    );
+    assert_config_error(
+        &["estimator", "train", "--data", &b, "--out", "/tmp/x.taxcrv"],
+        "bad.csv:3",
+    );
     // A sensor nobody publishes: the probe says so and fails instead of printing empty numbers.
     let (code, _, err) = run(
         &unique_prefix("u"),
@@ -128,4 +152,63 @@ fn demo_runs_every_role_as_a_process_and_exits_clean() {
     );
     assert!(dir.path().join("demo.taxrec").exists());
     assert_eq!(shm_files(&prefix), Vec::<String>::new());
+}
+
+#[test]
+fn estimator_eval_json_is_one_object_with_the_documented_keys() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let data = dir.path().display().to_string();
+    let prefix = unique_prefix("j");
+    let (code, _, err) = run(
+        &prefix,
+        &[
+            "estimator",
+            "dataset",
+            "--out",
+            &data,
+            "--seed",
+            "1",
+            "--session",
+            "3",
+            "--sensors",
+            "1",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let model = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/models/curvature-default.taxcrv"
+    );
+    let csv = dir.path().join("sensor0.csv.gz").display().to_string();
+    let svg = dir.path().join("pv.svg");
+    let (code, out, err) = run(
+        &prefix,
+        &[
+            "estimator",
+            "eval",
+            "--model",
+            model,
+            "--data",
+            &csv,
+            "--json",
+            "--plot",
+            &svg.display().to_string(),
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(lines.len(), 1, "exactly one line on stdout: {out}");
+    let j = lines[0];
+    assert!(j.starts_with("{\"r2\": ") && j.ends_with('}'), "{j}");
+    for key in ["\"mae_m1\": ", "\"rmse_m1\": ", "\"n\": 100}"] {
+        assert!(j.contains(key), "{key} in {j}");
+    }
+    // Held-out session of the shipped model's first sensor: the model must do well.
+    let r2: f64 = j["{\"r2\": ".len()..j.find(',').expect("comma")]
+        .parse()
+        .expect("r2");
+    assert!(r2 > 0.9, "R^2 {r2} on a held-out session");
+    assert!(std::fs::read_to_string(&svg)
+        .expect("plot")
+        .contains("<svg"));
 }

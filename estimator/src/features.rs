@@ -77,7 +77,7 @@ impl Standardizer {
         }
         for s in sd.iter_mut() {
             *s = s.sqrt();
-            if !(*s > 1e-12) {
+            if !s.is_finite() || *s <= 1e-12 {
                 *s = 1.0;
             }
         }

@@ -680,6 +680,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::needless_range_loop)]
     fn backprop_matches_finite_differences_for_every_layer() {
         let (d, h, k, b) = (3, 5, 2, 4);
         let mut net = Mlp::new(d, h, k, 7);

@@ -460,7 +460,9 @@ impl Predictor<'_> {
         let (y, extra_var) = match (&m.regressor, self.mlp.as_mut()) {
             (Regressor::Ridge(r), _) => (r.predict(&self.feat), r.leverage(&self.feat)),
             (Regressor::Mlp(_), Some(f)) => (f.predict(&self.feat), 0.0),
-            (Regressor::Mlp(n), None) => (n.predict_batch(&[self.feat.clone()])[0], 0.0),
+            (Regressor::Mlp(n), None) => {
+                (n.predict_batch(std::slice::from_ref(&self.feat))[0], 0.0)
+            }
         };
         let c = y * m.y_sd + m.y_mean;
         let span = (m.training.curvature_max_m1 - m.training.curvature_min_m1).max(1.0);

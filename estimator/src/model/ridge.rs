@@ -52,14 +52,12 @@ impl Ridge {
     /// Leverage-like spread of a new point: `x^T (X^T X + lambda I)^-1 x`.
     pub fn leverage(&self, x: &[f64]) -> f64 {
         let d = self.weights.len();
-        let mut s = 0.0;
-        for i in 0..d {
-            let mut row = 0.0;
-            for j in 0..d {
-                row += self.inv_gram[i * d + j] * x[j];
-            }
-            s += x[i] * row;
-        }
+        let s: f64 = self
+            .inv_gram
+            .chunks_exact(d)
+            .zip(x)
+            .map(|(row, xi)| xi * row.iter().zip(x).map(|(a, b)| a * b).sum::<f64>())
+            .sum();
         s.max(0.0)
     }
 }
