@@ -44,6 +44,68 @@ pub enum ModelSpec {
     /// `F = sum coef S^s C^c` (the paper's form: total degree <= 3).
     #[serde(rename = "poly")]
     Poly { terms: Vec<Term> },
+    /// Physics-derived: curvature scales the sensitivity, so the reading is first brought back
+    /// to its flat equivalent `x = S (1 + g1 C + g2 C^2)`, then the inverse static law
+    /// `F = h(x)` is a strictly increasing piecewise-linear curve through the knots `(x, f)`
+    /// (extended with its end slopes), monotone in S by construction.
+    #[serde(rename = "physics")]
+    Physics {
+        /// `[g1 (m), g2 (m^2)]`.
+        curvature_gain: [f64; 2],
+        /// Knot positions in flat-equivalent counts, strictly increasing.
+        x: Vec<f64>,
+        /// Force at each knot (N), strictly increasing.
+        f: Vec<f64>,
+    },
+}
+
+/// A validated model.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Model {
+    Poly(Vec<Term>),
+    Physics {
+        gain: [f64; 2],
+        x: Vec<f64>,
+        f: Vec<f64>,
+    },
+}
+
+impl Model {
+    /// Force without range handling.
+    #[inline]
+    pub fn value(&self, s: f64, c: f64) -> f64 {
+        match self {
+            Model::Poly(terms) => terms
+                .iter()
+                .map(|t| t.coef * s.powi(t.s as i32) * c.powi(t.c as i32))
+                .sum(),
+            Model::Physics { gain, x, f } => {
+                let u = s * (1.0 + gain[0] * c + gain[1] * c * c);
+                let n = x.len();
+                let i = x.partition_point(|&k| k <= u).clamp(1, n - 1);
+                let (x0, x1, f0, f1) = (x[i - 1], x[i], f[i - 1], f[i]);
+                f0 + (f1 - f0) * (u - x0) / (x1 - x0)
+            }
+        }
+    }
+
+    /// dF/dS without range handling.
+    pub fn slope(&self, s: f64, c: f64) -> f64 {
+        match self {
+            Model::Poly(terms) => terms
+                .iter()
+                .filter(|t| t.s > 0)
+                .map(|t| t.coef * t.s as f64 * s.powi(t.s as i32 - 1) * c.powi(t.c as i32))
+                .sum(),
+            Model::Physics { gain, x, f } => {
+                let m = 1.0 + gain[0] * c + gain[1] * c * c;
+                let u = s * m;
+                let n = x.len();
+                let i = x.partition_point(|&k| k <= u).clamp(1, n - 1);
+                m * (f[i] - f[i - 1]) / (x[i] - x[i - 1])
+            }
+        }
+    }
 }
 
 /// Where a block's model may be used.
@@ -103,7 +165,7 @@ pub struct Block {
     pub name: String,
     /// Node indices; empty means the whole array.
     pub nodes: Vec<usize>,
-    terms: Vec<Term>,
+    pub model: Model,
     s_range: [f64; 2],
     c_range: [f64; 2],
     s_max_by_c: Vec<[f64; 2]>,
@@ -143,21 +205,14 @@ impl Block {
         (self.s_range, self.c_range)
     }
 
-    /// The raw polynomial, without range handling.
+    /// The raw model, without range handling.
     pub fn poly(&self, s: f64, c: f64) -> f64 {
-        self.terms
-            .iter()
-            .map(|t| t.coef * s.powi(t.s as i32) * c.powi(t.c as i32))
-            .sum()
+        self.model.value(s, c)
     }
 
-    /// dF/dS of the raw polynomial.
+    /// dF/dS of the raw model.
     pub fn slope(&self, s: f64, c: f64) -> f64 {
-        self.terms
-            .iter()
-            .filter(|t| t.s > 0)
-            .map(|t| t.coef * t.s as f64 * s.powi(t.s as i32 - 1) * c.powi(t.c as i32))
-            .sum()
+        self.model.slope(s, c)
     }
 
     /// Force at reading `s` and curvature `c`, clamped to the declared range and flagged when
@@ -201,6 +256,61 @@ pub struct Calibration {
     pub blocks: Vec<Block>,
 }
 
+/// Validates a model's parameters (not yet its monotonicity, which depends on the range).
+pub fn validate_model(name: &str, spec: &ModelSpec) -> Result<Model, String> {
+    match spec {
+        ModelSpec::Poly { terms } => {
+            if terms.is_empty() || !terms.iter().any(|t| t.s > 0) {
+                return Err(format!("block {name:?}: the model has no term in S"));
+            }
+            for t in terms {
+                if !t.coef.is_finite() {
+                    return Err(format!(
+                        "block {name:?}: coefficient of S^{} C^{} is not finite",
+                        t.s, t.c
+                    ));
+                }
+                if t.s + t.c > 6 {
+                    return Err(format!(
+                        "block {name:?}: term S^{} C^{} exceeds total degree 6",
+                        t.s, t.c
+                    ));
+                }
+            }
+            Ok(Model::Poly(terms.clone()))
+        }
+        ModelSpec::Physics {
+            curvature_gain,
+            x,
+            f,
+        } => {
+            if x.len() != f.len() || x.len() < 2 || x.len() > 256 {
+                return Err(format!(
+                    "block {name:?}: x and f need the same length, 2 to 256 knots"
+                ));
+            }
+            let finite = x
+                .iter()
+                .chain(f)
+                .chain(curvature_gain)
+                .all(|v| v.is_finite());
+            if !finite {
+                return Err(format!("block {name:?}: a knot or gain is not finite"));
+            }
+            if x.windows(2).any(|w| w[1] <= w[0]) || f.windows(2).any(|w| w[1] <= w[0]) {
+                return Err(format!(
+                    "block {name:?}: knots x and forces f must both be strictly increasing"
+                ));
+            }
+            Ok(Model::Physics {
+                gain: *curvature_gain,
+                x: x.clone(),
+                f: f.clone(),
+            })
+        }
+    }
+}
+
 fn validate_block(spec: &BlockSpec, n_nodes: usize, whole_array: bool) -> Result<Block, String> {
     let name = &spec.name;
     if name.trim().is_empty() {
@@ -230,24 +340,7 @@ fn validate_block(spec: &BlockSpec, n_nodes: usize, whole_array: bool) -> Result
             list.clone()
         }
     };
-    let ModelSpec::Poly { terms } = &spec.model;
-    if terms.is_empty() || !terms.iter().any(|t| t.s > 0) {
-        return Err(format!("block {name:?}: the model has no term in S"));
-    }
-    for t in terms {
-        if !t.coef.is_finite() {
-            return Err(format!(
-                "block {name:?}: coefficient of S^{} C^{} is not finite",
-                t.s, t.c
-            ));
-        }
-        if t.s + t.c > 6 {
-            return Err(format!(
-                "block {name:?}: term S^{} C^{} exceeds total degree 6",
-                t.s, t.c
-            ));
-        }
-    }
+    let model = validate_model(name, &spec.model)?;
     let r = &spec.range;
     let finite = r.s.iter().chain(&r.curvature_m1).all(|v| v.is_finite());
     if !finite || r.s[0] >= r.s[1] || r.curvature_m1[0] > r.curvature_m1[1] {
@@ -267,7 +360,7 @@ fn validate_block(spec: &BlockSpec, n_nodes: usize, whole_array: bool) -> Result
     let block = Block {
         name: name.clone(),
         nodes,
-        terms: terms.clone(),
+        model,
         s_range: r.s,
         c_range: r.curvature_m1,
         s_max_by_c: r.s_max_by_curvature.clone(),

@@ -11,8 +11,11 @@ use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, Resul
 use taxel_runtime::Shutdown;
 use tracing::info;
 
-use crate::calibration::{BlockSpec, Calibration, CalibrationFile, ModelSpec};
-use crate::fit::{fit_poly, fitted_range, observations, paper_terms, stats, to_toml, Observation};
+use crate::calibration::validate_model;
+use crate::calibration::{BlockSpec, Calibration, CalibrationFile};
+use crate::fit::{
+    fit_form, fitted_range, held_out_rmse, observations, stats, to_toml, Form, Observation,
+};
 use crate::reload::load_for;
 
 /// Calibrated forces from raw frames, and the tools to make calibration files.
@@ -63,9 +66,10 @@ pub struct FitArgs {
     /// Fit a flat calibration from the curvature-0 data only.
     #[arg(long)]
     pub flat: bool,
-    /// Model form (the paper's polynomial of total degree <= 3 in S and C).
-    #[arg(long, default_value = "paper", value_parser = ["paper"])]
-    pub form: String,
+    /// Model form: the paper's polynomial, the physics-derived monotone form, or whichever has
+    /// the lower error on held-out trials.
+    #[arg(long, value_enum, default_value_t = Form::Auto)]
+    pub form: Form,
     /// Calibration id written into the file.
     #[arg(long, default_value = "fitted")]
     pub id: String,
@@ -79,8 +83,11 @@ pub struct FitArgs {
     #[arg(long)]
     pub cols: Option<usize>,
     /// Largest curvature used for the fit (1/m).
-    #[arg(long, default_value_t = 80.0)]
+    #[arg(long, default_value_t = 100.0)]
     pub max_curvature_m1: f64,
+    /// Draw the calibration surface (force vs reading at several curvatures) to .svg or .png.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
 }
 
 /// Runs the calibrator CLI; the exit code follows the process conventions.
@@ -151,10 +158,11 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
     let specs: Vec<(String, Vec<usize>)> =
         vec![("array".into(), Vec::new()), ("center".into(), center)];
     let mut blocks = Vec::new();
+    let mut forms_used = Vec::new();
     for (name, nodes) in &specs {
         let mut obs: Vec<Observation> = Vec::new();
-        for r in &recs {
-            obs.extend(observations(r, nodes, 0.0).runtime_err()?);
+        for (i, r) in recs.iter().enumerate() {
+            obs.extend(observations(r, i, nodes, 0.0).runtime_err()?);
         }
         obs.retain(|o| {
             if a.flat {
@@ -168,26 +176,52 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
                 "no usable samples (a flat fit needs curvature_m1 = 0 rows)"
             )));
         }
-        let powers = paper_terms(3, a.flat);
-        let (terms, st) = fit_poly(&obs, &powers).runtime_err()?;
-        let range = fitted_range(&obs, &terms).runtime_err()?;
-        let smax = range.s[1];
-        let inside: Vec<Observation> = obs.iter().copied().filter(|o| o.s <= smax).collect();
-        let model = |s: f64, c: f64| -> f64 {
-            terms
-                .iter()
-                .map(|t| t.coef * s.powi(t.s as i32) * c.powi(t.c as i32))
-                .sum()
+        let form = match a.form {
+            Form::Auto => {
+                let (paper, trials) = held_out_rmse(&obs, Form::Paper, a.flat).runtime_err()?;
+                let (physics, _) = held_out_rmse(&obs, Form::Physics, a.flat).runtime_err()?;
+                let pick = if physics <= paper {
+                    Form::Physics
+                } else {
+                    Form::Paper
+                };
+                println!(
+                    "block {name:>6}: auto picks {} (held-out RMSE over {trials} trials: physics {physics:.3} N, paper {paper:.3} N)",
+                    if pick == Form::Physics { "physics" } else { "paper" }
+                );
+                pick
+            }
+            f => f,
         };
-        let st_in = stats(&inside, model);
+        let spec = fit_form(&obs, form, a.flat).runtime_err()?;
+        let model = validate_model(name, &spec)
+            .map_err(|e| anyhow::anyhow!(e))
+            .runtime_err()?;
+        let range = fitted_range(&obs, &model).runtime_err()?;
+        let smax = range.s[1];
+        let within: Vec<Observation> = obs
+            .iter()
+            .copied()
+            .filter(|o| o.s <= smax && o.c <= 80.0 + 1e-9)
+            .collect();
+        let st = stats(&within, |s, c| model.value(s.max(0.0), c));
         println!(
-            "block {name:>6}: n = {}, R^2 = {:.4}, RMSE = {:.3} N; within the declared range S <= {smax}: R^2 = {:.4}, RMSE = {:.3} N",
-            st.n, st.r2, st.rmse_n, st_in.r2, st_in.rmse_n
+            "block {name:>6}: {} form, n = {}, on 0-80 1/m: R^2 = {:.4}, RMSE = {:.3} N; declared S <= {smax}, C {:?} 1/m",
+            if form == Form::Physics { "physics" } else { "paper" },
+            obs.len(),
+            st.r2,
+            st.rmse_n,
+            range.curvature_m1
         );
+        forms_used.push(if form == Form::Physics {
+            "physics"
+        } else {
+            "paper"
+        });
         blocks.push(BlockSpec {
             name: name.clone(),
             nodes: (!nodes.is_empty()).then(|| nodes.clone()),
-            model: ModelSpec::Poly { terms },
+            model: spec,
             range,
         });
     }
@@ -198,7 +232,7 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
         description: format!(
             "{} fit ({}) of {}",
             if a.flat { "flat" } else { "curvature-aware" },
-            a.form,
+            forms_used.join("/"),
             a.data
                 .iter()
                 .map(|p| p
@@ -215,7 +249,11 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
     };
     let comment = "Fitted by `taxel-calibrator fit`. S = block sum of (raw - no-load baseline) in counts;\nC = curvature in 1/m; F in N. Edit freely: the calibrator validates and hot-reloads it.";
     let text = to_toml(&file, comment);
-    Calibration::from_toml_str(&a.out.display().to_string(), &text).runtime_err()?;
+    let cal = Calibration::from_toml_str(&a.out.display().to_string(), &text).runtime_err()?;
+    if let Some(p) = &a.plot {
+        crate::plots::surface(p, &cal).runtime_err()?;
+        println!("plot: {}", p.display());
+    }
     std::fs::write(&a.out, text)
         .with_context(|| format!("{}", a.out.display()))
         .runtime_err()?;

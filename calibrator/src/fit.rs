@@ -8,7 +8,7 @@ use faer::prelude::*;
 use faer::Mat;
 use taxel_formats::Recording;
 
-use crate::calibration::{BlockSpec, CalibrationFile, ModelSpec, RangeSpec, Term};
+use crate::calibration::{BlockSpec, CalibrationFile, Model, ModelSpec, RangeSpec, Term};
 
 /// Force below which a frame counts as unloaded when estimating a trial's baseline (N).
 pub const NO_LOAD_FORCE_N: f64 = 0.02;
@@ -22,6 +22,8 @@ pub struct Observation {
     pub c: f64,
     /// Reference force (N).
     pub f: f64,
+    /// Trial (unique across files: file index x 1e9 + trial), for splits by trial.
+    pub trial: i64,
 }
 
 /// Why a fit failed.
@@ -62,6 +64,7 @@ pub fn trials(rec: &Recording) -> Vec<i64> {
 /// trial from its unloaded frames. Samples without curvature use `default_c`.
 pub fn observations(
     rec: &Recording,
+    file_index: usize,
     nodes: &[usize],
     default_c: f64,
 ) -> Result<Vec<Observation>, FitError> {
@@ -98,6 +101,7 @@ pub fn observations(
             s: block_sum(i) - sum / count as f64,
             c,
             f: force[i],
+            trial: file_index as i64 * 1_000_000_000 + trial[i],
         });
     }
     Ok(out)
@@ -185,16 +189,11 @@ pub fn stats(obs: &[Observation], model: impl Fn(f64, f64) -> f64) -> FitStats {
 
 /// Declared range for a fitted block: S from 0 to the largest observed reading, C over the
 /// observed curvatures; S max lowered, if needed, to where the model stops increasing.
-pub fn fitted_range(obs: &[Observation], terms: &[Term]) -> Result<RangeSpec, FitError> {
+pub fn fitted_range(obs: &[Observation], model: &Model) -> Result<RangeSpec, FitError> {
     let s_hi = obs.iter().map(|o| o.s).fold(0.0, f64::max);
     let c_lo = obs.iter().map(|o| o.c).fold(f64::INFINITY, f64::min);
     let c_hi = obs.iter().map(|o| o.c).fold(f64::NEG_INFINITY, f64::max);
-    let slope = |s: f64, c: f64| -> f64 {
-        terms
-            .iter()
-            .map(|t| t.coef * t.s as f64 * s.powi(t.s as i32 - 1) * c.powi(t.c as i32))
-            .sum()
-    };
+    let slope = |s: f64, c: f64| model.slope(s, c);
     let mut s_max = s_hi;
     for ci in 0..=40 {
         let c = c_lo + (c_hi - c_lo) * ci as f64 / 40.0;
@@ -209,10 +208,40 @@ pub fn fitted_range(obs: &[Observation], terms: &[Term]) -> Result<RangeSpec, Fi
     if s_max <= 0.0 {
         return Err(FitError::NotMonotone);
     }
+    // Where the data reached, per curvature (5 % margin): readings beyond what any fixture
+    // produced at that curvature are flagged rather than silently extrapolated.
+    let mut groups: std::collections::BTreeMap<i64, (f64, f64, usize)> = Default::default();
+    let span = (c_hi - c_lo).max(1e-9);
+    let distinct: std::collections::BTreeSet<i64> =
+        obs.iter().map(|o| (o.c * 100.0).round() as i64).collect();
+    for o in obs {
+        let key = if distinct.len() <= 24 {
+            (o.c * 100.0).round() as i64
+        } else {
+            ((o.c - c_lo) / span * 19.0).round() as i64
+        };
+        let e = groups.entry(key).or_insert((0.0, f64::NEG_INFINITY, 0));
+        e.0 += o.c;
+        e.1 = e.1.max(o.s);
+        e.2 += 1;
+    }
+    let table: Vec<[f64; 2]> = if groups.len() >= 2 {
+        groups
+            .values()
+            .map(|(sum_c, max_s, n)| {
+                [
+                    sum_c / *n as f64,
+                    (1.05 * max_s).min(s_max).floor().max(1.0),
+                ]
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
     Ok(RangeSpec {
         s: [0.0, s_max.floor()],
         curvature_m1: [c_lo, c_hi],
-        s_max_by_curvature: Vec::new(),
+        s_max_by_curvature: table,
     })
 }
 
@@ -231,16 +260,39 @@ fn write_block(out: &mut String, header: &str, b: &BlockSpec) {
         let list: Vec<String> = nodes.iter().map(|k| k.to_string()).collect();
         let _ = writeln!(out, "nodes = [{}]", list.join(", "));
     }
-    let ModelSpec::Poly { terms } = &b.model;
-    let _ = writeln!(out, "model = {{ form = \"poly\", terms = [");
-    for t in terms {
-        let _ = writeln!(
-            out,
-            "  {{ s = {}, c = {}, coef = {:e} }},",
-            t.s, t.c, t.coef
-        );
+    match &b.model {
+        ModelSpec::Poly { terms } => {
+            let _ = writeln!(out, "model = {{ form = \"poly\", terms = [");
+            for t in terms {
+                let _ = writeln!(
+                    out,
+                    "  {{ s = {}, c = {}, coef = {:e} }},",
+                    t.s, t.c, t.coef
+                );
+            }
+            let _ = writeln!(out, "] }}");
+        }
+        ModelSpec::Physics {
+            curvature_gain,
+            x,
+            f,
+        } => {
+            let list = |v: &[f64]| {
+                v.iter()
+                    .map(|a| format!("{a:e}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            let _ = writeln!(
+                out,
+                "model = {{ form = \"physics\", curvature_gain = [{:e}, {:e}],\n  x = [{}],\n  f = [{}] }}",
+                curvature_gain[0],
+                curvature_gain[1],
+                list(x),
+                list(f)
+            );
+        }
     }
-    let _ = writeln!(out, "] }}");
     let r = &b.range;
     let _ = write!(
         out,
@@ -302,6 +354,7 @@ mod tests {
                     s,
                     c,
                     f: truth(s, c),
+                    trial: c as i64,
                 });
             }
         }
@@ -310,7 +363,7 @@ mod tests {
         assert!(st.rmse_n < 1e-6, "{st:?}");
         let s1 = terms.iter().find(|t| (t.s, t.c) == (1, 0)).map(|t| t.coef);
         assert!((s1.unwrap_or(0.0) - 0.01).abs() < 1e-8);
-        let range = fitted_range(&obs, &terms).expect("monotone");
+        let range = fitted_range(&obs, &Model::Poly(terms.clone())).expect("monotone");
         assert_eq!(range.curvature_m1, [0.0, 80.0]);
     }
 
@@ -352,4 +405,65 @@ mod tests {
         assert_eq!(back, f);
         Calibration::from_file("t", &back).expect("valid");
     }
+}
+
+/// Calibration model forms `fit` can produce.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Form {
+    /// The paper's polynomial of total degree <= 3 in S and C.
+    Paper,
+    /// Flat-equivalent reading through a monotone inverse static law (crate::physics).
+    Physics,
+    /// Whichever has the lower error on held-out trials.
+    Auto,
+}
+
+/// Fits one form (`Paper` or `Physics`) to observations.
+pub fn fit_form(obs: &[Observation], form: Form, flat: bool) -> Result<ModelSpec, FitError> {
+    match form {
+        Form::Physics => Ok(crate::physics::fit_physics(obs, flat)),
+        _ => {
+            let (terms, _) = fit_poly(obs, &paper_terms(3, flat))?;
+            Ok(ModelSpec::Poly { terms })
+        }
+    }
+}
+
+/// Held-out RMSE of a form and how many groups were held out: every fourth trial is held out
+/// and the rest fits; with fewer than four trials, every fourth block of 200 consecutive
+/// samples instead.
+pub fn held_out_rmse(
+    obs: &[Observation],
+    form: Form,
+    flat: bool,
+) -> Result<(f64, usize), FitError> {
+    let mut ids: Vec<i64> = obs.iter().map(|o| o.trial).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    let (test, train): (Vec<Observation>, Vec<Observation>);
+    let groups;
+    if ids.len() >= 4 {
+        let held: std::collections::HashSet<i64> = ids.iter().skip(1).step_by(4).copied().collect();
+        groups = held.len();
+        (test, train) = obs.iter().partition(|o| held.contains(&o.trial));
+    } else {
+        let (mut te, mut tr) = (Vec::new(), Vec::new());
+        for (i, o) in obs.iter().enumerate() {
+            if (i / 200) % 4 == 1 {
+                te.push(*o);
+            } else {
+                tr.push(*o);
+            }
+        }
+        groups = obs.len().div_ceil(800);
+        (test, train) = (te, tr);
+    }
+    if test.is_empty() || train.is_empty() {
+        return Err(FitError::TooFew(obs.len(), 2));
+    }
+    let spec = fit_form(&train, form, flat)?;
+    let model =
+        crate::calibration::validate_model("held-out", &spec).map_err(|_| FitError::NotMonotone)?;
+    let r = stats(&test, |s, c| model.value(s.max(0.0), c));
+    Ok((r.rmse_n, groups))
 }

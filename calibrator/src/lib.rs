@@ -6,6 +6,8 @@
 pub mod calibration;
 pub mod cli;
 pub mod fit;
+pub mod physics;
+pub mod plots;
 pub mod reload;
 pub mod run;
 
