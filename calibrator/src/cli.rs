@@ -11,11 +11,8 @@ use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, Resul
 use taxel_runtime::Shutdown;
 use tracing::info;
 
-use crate::calibration::validate_model;
-use crate::calibration::{BlockSpec, Calibration, CalibrationFile};
-use crate::fit::{
-    fit_form, fitted_range, held_out_rmse, observations, stats, to_toml, Form, Observation,
-};
+use crate::calibration::Calibration;
+use crate::fit::{fit_calibration, FitOptions, Form};
 use crate::reload::load_for;
 
 /// Calibrated forces from raw frames, and the tools to make calibration files.
@@ -34,6 +31,36 @@ pub enum Cmd {
     Run(RunArgs),
     /// Fit a calibration file from recording CSVs with force_n (and curvature_m1).
     Fit(FitArgs),
+    /// The paper's protocol on an object recording: flat vs curvature-aware error per level.
+    Eval(EvalArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct EvalArgs {
+    /// Curvature model (from `taxel estimator train`).
+    #[arg(long)]
+    pub curvature_model: PathBuf,
+    /// Curvature-aware calibration.
+    #[arg(long)]
+    pub calibration: PathBuf,
+    /// Flat calibration (fitted with --flat).
+    #[arg(long)]
+    pub flat: PathBuf,
+    /// Recording of the object (.csv or .csv.gz) with force_n; it must start unloaded.
+    #[arg(long)]
+    pub recording: PathBuf,
+    /// Force levels (N).
+    #[arg(long, value_delimiter = ',', default_value = "2,4,6,8")]
+    pub levels: Vec<f64>,
+    /// Print exactly one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Rows of the array (inferred for a square node count).
+    #[arg(long)]
+    pub rows: Option<usize>,
+    /// Columns of the array.
+    #[arg(long)]
+    pub cols: Option<usize>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -96,6 +123,7 @@ pub fn main(args: Args) -> ExitCode {
     let r = match args.cmd {
         Cmd::Run(a) => run(&args.common, a),
         Cmd::Fit(a) => fit(a),
+        Cmd::Eval(a) => eval(a),
     };
     exit_code("taxel-calibrator", r)
 }
@@ -136,120 +164,19 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
     for p in &a.data {
         recs.push(Recording::read(p).config_err()?);
     }
-    let n = recs[0].n_nodes;
-    for r in &recs {
-        if r.n_nodes != n {
-            return Err(Failure::config(anyhow::anyhow!(
-                "{} has {} nodes but {} has {n}",
-                r.path.display(),
-                r.n_nodes,
-                recs[0].path.display()
-            )));
-        }
-        if r.force_n.is_none() {
-            return Err(Failure::config(anyhow::anyhow!(
-                "{}: needs a force_n column",
-                r.path.display()
-            )));
-        }
-    }
-    let g = recs[0].geometry(a.rows, a.cols).config_err()?;
-    let center = crate::central_block(g.rows, g.cols);
-    let specs: Vec<(String, Vec<usize>)> =
-        vec![("array".into(), Vec::new()), ("center".into(), center)];
-    let mut blocks = Vec::new();
-    let mut forms_used = Vec::new();
-    for (name, nodes) in &specs {
-        let mut obs: Vec<Observation> = Vec::new();
-        for (i, r) in recs.iter().enumerate() {
-            obs.extend(observations(r, i, nodes, 0.0).runtime_err()?);
-        }
-        obs.retain(|o| {
-            if a.flat {
-                o.c.abs() < 1e-9
-            } else {
-                o.c <= a.max_curvature_m1 + 1e-9
-            }
-        });
-        if obs.is_empty() {
-            return Err(Failure::config(anyhow::anyhow!(
-                "no usable samples (a flat fit needs curvature_m1 = 0 rows)"
-            )));
-        }
-        let form = match a.form {
-            Form::Auto => {
-                let (paper, trials) = held_out_rmse(&obs, Form::Paper, a.flat).runtime_err()?;
-                let (physics, _) = held_out_rmse(&obs, Form::Physics, a.flat).runtime_err()?;
-                let pick = if physics <= paper {
-                    Form::Physics
-                } else {
-                    Form::Paper
-                };
-                println!(
-                    "block {name:>6}: auto picks {} (held-out RMSE over {trials} trials: physics {physics:.3} N, paper {paper:.3} N)",
-                    if pick == Form::Physics { "physics" } else { "paper" }
-                );
-                pick
-            }
-            f => f,
-        };
-        let spec = fit_form(&obs, form, a.flat).runtime_err()?;
-        let model = validate_model(name, &spec)
-            .map_err(|e| anyhow::anyhow!(e))
-            .runtime_err()?;
-        let range = fitted_range(&obs, &model).runtime_err()?;
-        let smax = range.s[1];
-        let within: Vec<Observation> = obs
-            .iter()
-            .copied()
-            .filter(|o| o.s <= smax && o.c <= 80.0 + 1e-9)
-            .collect();
-        let st = stats(&within, |s, c| model.value(s.max(0.0), c));
-        println!(
-            "block {name:>6}: {} form, n = {}, on 0-80 1/m: R^2 = {:.4}, RMSE = {:.3} N; declared S <= {smax}, C {:?} 1/m",
-            if form == Form::Physics { "physics" } else { "paper" },
-            obs.len(),
-            st.r2,
-            st.rmse_n,
-            range.curvature_m1
-        );
-        forms_used.push(if form == Form::Physics {
-            "physics"
-        } else {
-            "paper"
-        });
-        blocks.push(BlockSpec {
-            name: name.clone(),
-            nodes: (!nodes.is_empty()).then(|| nodes.clone()),
-            model: spec,
-            range,
-        });
-    }
-    let array = blocks.remove(0);
-    let file = CalibrationFile {
+    let opts = FitOptions {
+        form: a.form,
+        flat: a.flat,
         id: a.id.clone(),
         version: a.version,
-        description: format!(
-            "{} fit ({}) of {}",
-            if a.flat { "flat" } else { "curvature-aware" },
-            forms_used.join("/"),
-            a.data
-                .iter()
-                .map(|p| p
-                    .file_name()
-                    .map_or_else(String::new, |f| f.to_string_lossy().into_owned()))
-                .collect::<Vec<_>>()
-                .join(", ")
-        ),
-        rows: g.rows,
-        cols: g.cols,
-        default_curvature_m1: 0.0,
-        array,
-        blocks,
+        rows: a.rows,
+        cols: a.cols,
+        max_curvature_m1: a.max_curvature_m1,
     };
-    let comment = "Fitted by `taxel-calibrator fit`. S = block sum of (raw - no-load baseline) in counts;\nC = curvature in 1/m; F in N. Edit freely: the calibrator validates and hot-reloads it.";
-    let text = to_toml(&file, comment);
-    let cal = Calibration::from_toml_str(&a.out.display().to_string(), &text).runtime_err()?;
+    let (text, cal, report) = fit_calibration(&recs, &opts).config_err()?;
+    for line in report {
+        println!("{line}");
+    }
     if let Some(p) = &a.plot {
         crate::plots::surface(p, &cal).runtime_err()?;
         println!("plot: {}", p.display());
@@ -258,5 +185,48 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
         .with_context(|| format!("{}", a.out.display()))
         .runtime_err()?;
     println!("wrote {}", a.out.display());
+    Ok(())
+}
+
+fn eval(a: EvalArgs) -> Result<(), Failure> {
+    for l in &a.levels {
+        if !(l.is_finite() && *l > 0.0) {
+            return Err(Failure::config(anyhow::anyhow!(
+                "--levels must be positive forces in N, got {l}"
+            )));
+        }
+    }
+    let model = taxel_estimator::model::CurvatureModel::load(&a.curvature_model).config_err()?;
+    let curve = Calibration::load(&a.calibration).config_err()?;
+    let flat = Calibration::load(&a.flat).config_err()?;
+    let rec = Recording::read(&a.recording).config_err()?;
+    let g = rec.geometry(a.rows, a.cols).config_err()?;
+    model
+        .check_nodes(&a.curvature_model.display().to_string(), rec.n_nodes)
+        .config_err()?;
+    let r = crate::evaluate::evaluate(&rec, g, &model, &curve, &flat, &a.levels).config_err()?;
+    if a.json {
+        println!("{}", crate::evaluate::json(&r));
+        return Ok(());
+    }
+    println!(
+        "{}: curvature predicted {:.1} +- {:.1} 1/m from the first {} frames",
+        a.recording.display(),
+        r.curvature_pred_m1,
+        r.curvature_sd_m1,
+        r.estimate_at + 1
+    );
+    println!("| level (N) | frames | flat MAE +- SD (N) | curvature-aware MAE +- SD (N) |");
+    println!("|---:|---:|---:|---:|");
+    for l in &r.levels {
+        if l.n == 0 {
+            println!("| {} | 0 | no window | no window |", l.target_n);
+        } else {
+            println!(
+                "| {} | {} | {:.2} +- {:.2} | {:.2} +- {:.2} |",
+                l.target_n, l.n, l.flat_mae_n, l.flat_sd_n, l.curve_mae_n, l.curve_sd_n
+            );
+        }
+    }
     Ok(())
 }

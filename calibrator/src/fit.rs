@@ -8,7 +8,9 @@ use faer::prelude::*;
 use faer::Mat;
 use taxel_formats::Recording;
 
-use crate::calibration::{BlockSpec, CalibrationFile, Model, ModelSpec, RangeSpec, Term};
+use crate::calibration::{
+    validate_model, BlockSpec, Calibration, CalibrationFile, Model, ModelSpec, RangeSpec, Term,
+};
 
 /// Force below which a frame counts as unloaded when estimating a trial's baseline (N).
 pub const NO_LOAD_FORCE_N: f64 = 0.02;
@@ -466,4 +468,135 @@ pub fn held_out_rmse(
         crate::calibration::validate_model("held-out", &spec).map_err(|_| FitError::NotMonotone)?;
     let r = stats(&test, |s, c| model.value(s.max(0.0), c));
     Ok((r.rmse_n, groups))
+}
+
+/// What `fit_calibration` needs besides the data.
+#[derive(Debug, Clone)]
+pub struct FitOptions {
+    pub form: Form,
+    pub flat: bool,
+    pub id: String,
+    pub version: u32,
+    pub rows: Option<usize>,
+    pub cols: Option<usize>,
+    pub max_curvature_m1: f64,
+}
+
+/// Fits a calibration file (the whole array and the central block) from recordings with
+/// `force_n` (and `curvature_m1`). Returns the file's text, the validated calibration, and the
+/// report lines (per block: form chosen and why, R^2 and RMSE on 0-80 1/m, declared range).
+pub fn fit_calibration(
+    recs: &[Recording],
+    a: &FitOptions,
+) -> anyhow::Result<(String, Calibration, Vec<String>)> {
+    let mut report = Vec::new();
+    anyhow::ensure!(!recs.is_empty(), "no recordings");
+    let n = recs[0].n_nodes;
+    for r in recs {
+        if r.n_nodes != n {
+            anyhow::bail!(
+                "{} has {} nodes but {} has {n}",
+                r.path.display(),
+                r.n_nodes,
+                recs[0].path.display()
+            );
+        }
+        if r.force_n.is_none() {
+            anyhow::bail!("{}: needs a force_n column", r.path.display());
+        }
+    }
+    let g = recs[0].geometry(a.rows, a.cols)?;
+    let center = crate::central_block(g.rows, g.cols);
+    let specs: Vec<(String, Vec<usize>)> =
+        vec![("array".into(), Vec::new()), ("center".into(), center)];
+    let mut blocks = Vec::new();
+    let mut forms_used = Vec::new();
+    for (name, nodes) in &specs {
+        let mut obs: Vec<Observation> = Vec::new();
+        for (i, r) in recs.iter().enumerate() {
+            obs.extend(observations(r, i, nodes, 0.0)?);
+        }
+        obs.retain(|o| {
+            if a.flat {
+                o.c.abs() < 1e-9
+            } else {
+                o.c <= a.max_curvature_m1 + 1e-9
+            }
+        });
+        if obs.is_empty() {
+            anyhow::bail!("no usable samples (a flat fit needs curvature_m1 = 0 rows)");
+        }
+        let form = match a.form {
+            Form::Auto => {
+                let (paper, trials) = held_out_rmse(&obs, Form::Paper, a.flat)?;
+                let (physics, _) = held_out_rmse(&obs, Form::Physics, a.flat)?;
+                let pick = if physics <= paper {
+                    Form::Physics
+                } else {
+                    Form::Paper
+                };
+                report.push(format!(
+                    "block {name:>6}: auto picks {} (held-out RMSE over {trials} trials: physics {physics:.3} N, paper {paper:.3} N)",
+                    if pick == Form::Physics { "physics" } else { "paper" }
+                ));
+                pick
+            }
+            f => f,
+        };
+        let spec = fit_form(&obs, form, a.flat)?;
+        let model = validate_model(name, &spec).map_err(|e| anyhow::anyhow!(e))?;
+        let range = fitted_range(&obs, &model)?;
+        let smax = range.s[1];
+        let within: Vec<Observation> = obs
+            .iter()
+            .copied()
+            .filter(|o| o.s <= smax && o.c <= 80.0 + 1e-9)
+            .collect();
+        let st = stats(&within, |s, c| model.value(s.max(0.0), c));
+        report.push(format!(
+            "block {name:>6}: {} form, n = {}, on 0-80 1/m: R^2 = {:.4}, RMSE = {:.3} N; declared S <= {smax}, C {:?} 1/m",
+            if form == Form::Physics { "physics" } else { "paper" },
+            obs.len(),
+            st.r2,
+            st.rmse_n,
+            range.curvature_m1
+        ));
+        forms_used.push(if form == Form::Physics {
+            "physics"
+        } else {
+            "paper"
+        });
+        blocks.push(BlockSpec {
+            name: name.clone(),
+            nodes: (!nodes.is_empty()).then(|| nodes.clone()),
+            model: spec,
+            range,
+        });
+    }
+    let array = blocks.remove(0);
+    let file = CalibrationFile {
+        id: a.id.clone(),
+        version: a.version,
+        description: format!(
+            "{} fit ({}) of {}",
+            if a.flat { "flat" } else { "curvature-aware" },
+            forms_used.join("/"),
+            recs.iter()
+                .map(|r| r
+                    .path
+                    .file_name()
+                    .map_or_else(String::new, |f| f.to_string_lossy().into_owned()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+        rows: g.rows,
+        cols: g.cols,
+        default_curvature_m1: 0.0,
+        array,
+        blocks,
+    };
+    let comment = "Fitted by `taxel-calibrator fit`. S = block sum of (raw - no-load baseline) in counts;\nC = curvature in 1/m; F in N. Edit freely: the calibrator validates and hot-reloads it.";
+    let text = to_toml(&file, comment);
+    let cal = Calibration::from_toml_str("fitted calibration", &text)?;
+    Ok((text, cal, report))
 }

@@ -6,6 +6,7 @@
 pub mod baseline;
 pub mod cli;
 pub mod dataset;
+pub mod estimate;
 pub mod features;
 pub mod model;
 pub mod plot;

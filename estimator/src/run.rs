@@ -4,12 +4,13 @@
 //! accepted, so the last estimate holds; when it is unloaded again, it re-estimates.
 
 use iceoryx2::prelude::*;
-use taxel_msgs::{curvature_flags, CurvatureEstimate, RawFrame, Stream};
+use taxel_msgs::{CurvatureEstimate, RawFrame, Stream};
 use taxel_runtime::ipc::{self, Ipc};
 use taxel_runtime::Shutdown;
 use tracing::info;
 
-use crate::baseline::{BaselineDetector, DetectorConfig};
+use crate::baseline::DetectorConfig;
+use crate::estimate::Estimator;
 use crate::model::CurvatureModel;
 
 /// Estimator settings.
@@ -37,12 +38,9 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
     let guard = ws
         .attach_notification(raw.listener())
         .map_err(|e| anyhow::anyhow!("attach raw listener: {e:?}"))?;
-    let mut det = BaselineDetector::new(cfg.detector.clone());
-    let mut est = CurvatureEstimate::ZERO;
+    let mut estimator = Estimator::new(cfg.detector.clone(), cfg.model.as_ref(), cfg.curvature_m1);
     let mut summary = Summary::default();
     let mut failure: Option<anyhow::Error> = None;
-    let mut predictor = cfg.model.as_ref().map(|m| m.predictor());
-    let mut checked = false;
     info!(
         sensor = %cfg.sensor,
         curvature_m1 = cfg.curvature_m1,
@@ -63,50 +61,18 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
                 if id.has_event_from(&guard) {
                     let r = raw.drain(|frame| {
                         summary.frames += 1;
-                        if !checked {
-                            checked = true;
-                            if let Some(m) = &cfg.model {
-                                if let Err(e) = m.check_nodes("curvature model", frame.n_nodes()) {
-                                    failure = Some(e.into());
-                                }
-                            }
-                        }
                         if failure.is_some() {
                             return;
                         }
-                        let Some(b) = det.push(frame.seq, frame.t_capture_ns, frame.nodes()) else {
-                            return;
+                        let est = match estimator.push(frame) {
+                            Ok(Some(est)) => est,
+                            Ok(None) => return,
+                            Err(e) => {
+                                failure = Some(e.into());
+                                return;
+                            }
                         };
-                        summary.estimates += 1;
-                        est.seq = b.last_seq;
-                        est.t_capture_ns = b.t_end_ns;
-                        est.t_window_start_ns = b.t_start_ns;
-                        est.sensor = frame.sensor;
-                        est.rows = frame.rows;
-                        est.cols = frame.cols;
-                        match (predictor.as_mut(), &cfg.model) {
-                            (Some(p), Some(m)) => {
-                                let pr = p.predict(&b.mean);
-                                est.curvature_m1 = pr.curvature_m1.max(0.0) as f32;
-                                est.curvature_sd_m1 = pr.sd_m1 as f32;
-                                est.model_version = m.model_version;
-                                est.flags = curvature_flags::ESTIMATED;
-                                if pr.out_of_range {
-                                    est.flags |= curvature_flags::OUT_OF_RANGE;
-                                }
-                            }
-                            _ => {
-                                est.curvature_m1 = cfg.curvature_m1 as f32;
-                                est.curvature_sd_m1 = 0.0;
-                                est.model_version = 0;
-                                est.flags = curvature_flags::CONFIGURED;
-                            }
-                        }
-                        est.window_frames = b.frames as u32;
-                        est.estimate_index = summary.estimates;
-                        for (d, s) in est.baseline.iter_mut().zip(&b.mean) {
-                            *d = *s as f32;
-                        }
+                        summary.estimates = est.estimate_index;
                         if summary.estimates == 1 {
                             info!(
                                 sensor = %cfg.sensor,
@@ -117,7 +83,7 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
                         } else {
                             tracing::debug!(curvature_m1 = est.curvature_m1, "new estimate");
                         }
-                        if let Err(e) = out.send(&est) {
+                        if let Err(e) = out.send(est) {
                             failure = Some(e.into());
                         }
                     });

@@ -1,0 +1,89 @@
+//! The per-frame estimator: baseline detection, then the curvature from the model (or the
+//! configured value), into a `CurvatureEstimate`. The live process and offline evaluation
+//! (`taxel calibrator eval`) run this same code, so they produce the same estimates.
+
+use taxel_msgs::{curvature_flags, CurvatureEstimate, RawFrame};
+
+use crate::baseline::{BaselineDetector, DetectorConfig};
+use crate::model::{CurvatureModel, ModelError, Predictor};
+
+/// Turns raw frames into curvature estimates.
+pub struct Estimator<'m> {
+    detector: BaselineDetector,
+    model: Option<(&'m CurvatureModel, Predictor<'m>)>,
+    configured_m1: f64,
+    est: Box<CurvatureEstimate>,
+    count: u32,
+    checked: bool,
+}
+
+impl<'m> Estimator<'m> {
+    pub fn new(
+        detector: DetectorConfig,
+        model: Option<&'m CurvatureModel>,
+        configured_m1: f64,
+    ) -> Estimator<'m> {
+        Estimator {
+            detector: BaselineDetector::new(detector),
+            model: model.map(|m| (m, m.predictor())),
+            configured_m1,
+            est: Box::new(CurvatureEstimate::ZERO),
+            count: 0,
+            checked: false,
+        }
+    }
+
+    /// Estimates published so far.
+    pub fn count(&self) -> u32 {
+        self.count
+    }
+
+    /// Feeds a frame; returns a new estimate when a no-load window completes. Fails once, on
+    /// the first frame, if the model was made for another node count.
+    pub fn push(&mut self, frame: &RawFrame) -> Result<Option<&CurvatureEstimate>, ModelError> {
+        if !self.checked {
+            self.checked = true;
+            if let Some((m, _)) = &self.model {
+                m.check_nodes("curvature model", frame.n_nodes())?;
+            }
+        }
+        let Some(b) = self
+            .detector
+            .push(frame.seq, frame.t_capture_ns, frame.nodes())
+        else {
+            return Ok(None);
+        };
+        self.count += 1;
+        let est = &mut self.est;
+        est.seq = b.last_seq;
+        est.t_capture_ns = b.t_end_ns;
+        est.t_window_start_ns = b.t_start_ns;
+        est.sensor = frame.sensor;
+        est.rows = frame.rows;
+        est.cols = frame.cols;
+        match self.model.as_mut() {
+            Some((m, p)) => {
+                let pr = p.predict(&b.mean);
+                est.curvature_m1 = pr.curvature_m1.max(0.0) as f32;
+                est.curvature_sd_m1 = pr.sd_m1 as f32;
+                est.model_version = m.model_version;
+                est.flags = curvature_flags::ESTIMATED;
+                if pr.out_of_range {
+                    est.flags |= curvature_flags::OUT_OF_RANGE;
+                }
+            }
+            None => {
+                est.curvature_m1 = self.configured_m1 as f32;
+                est.curvature_sd_m1 = 0.0;
+                est.model_version = 0;
+                est.flags = curvature_flags::CONFIGURED;
+            }
+        }
+        est.window_frames = b.frames as u32;
+        est.estimate_index = self.count;
+        for (d, s) in est.baseline.iter_mut().zip(&b.mean) {
+            *d = *s as f32;
+        }
+        Ok(Some(&*self.est))
+    }
+}
