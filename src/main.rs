@@ -4,6 +4,7 @@
 
 mod children;
 mod demo;
+mod evaluate;
 
 use std::process::ExitCode;
 
@@ -22,6 +23,9 @@ enum Cmd {
     /// Run the simulated pipeline (publisher, estimator, calibrator, control, logger) as
     /// separate processes and print its status once a second.
     Demo(demo::DemoArgs),
+    /// Reproduce the paper's results on the simulator (`taxel evaluate table1`).
+    #[command(subcommand)]
+    Evaluate(evaluate::Evaluate),
     /// Publisher process: raw frames from the simulator or a recording.
     Publisher(taxel_publisher::cli::Args),
     /// Estimator process: no-load baselines and curvature.
@@ -39,6 +43,7 @@ enum Cmd {
 fn main() -> ExitCode {
     match Cli::parse().cmd {
         Cmd::Demo(a) => demo::main(a),
+        Cmd::Evaluate(e) => evaluate::main(e),
         Cmd::Publisher(a) => taxel_publisher::cli::main(a),
         Cmd::Estimator(a) => taxel_estimator::cli::main(a),
         Cmd::Calibrator(a) => taxel_calibrator::cli::main(a),

@@ -11,6 +11,7 @@ pub mod physics;
 pub mod plots;
 pub mod reload;
 pub mod run;
+pub mod table1;
 
 /// Nodes of the central 2 x 2 block (the paper's indenter), or of the whole array when it is
 /// smaller, row-major.

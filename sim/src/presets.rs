@@ -18,6 +18,16 @@ pub fn preset(name: &str) -> Option<SensorModel> {
             m.spread.build_g0_log_sd = 0.25;
             m.curvature.mount_curvature_scatter = 0.04;
             m.curvature.mount_baseline_log_sd = 0.01;
+            // Mild creep and hysteresis: loading history matters a little, as on real
+            // Velostat (no effect on unloaded frames, so baselines are unchanged).
+            m.creep = Some(crate::model::Creep {
+                amplitudes: vec![0.02, 0.02],
+                tau_s: vec![2.0, 60.0],
+            });
+            m.hysteresis = Some(crate::model::Hysteresis {
+                weight: 0.06,
+                thresholds_n: vec![0.1, 0.3, 0.6, 1.0],
+            });
         }
         "alt" => {
             m.spread.build_g0_log_sd = 0.35;

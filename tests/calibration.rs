@@ -1,0 +1,166 @@
+//! `taxel calibrator eval` runs the same code as the live pipeline: replaying an object
+//! recording through the real processes (publisher replay -> estimator with the curvature
+//! model -> calibrator) gives exactly the forces the offline protocol computes.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::Duration;
+
+use common::{run, spawn, unique_prefix};
+use taxel_formats::{Record, RecordFileReader, Recording};
+
+#[test]
+fn live_replay_gives_the_same_forces_as_offline_eval() {
+    let prefix = unique_prefix("k");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("t1");
+    let out_s = out.display().to_string();
+    let (code, stdout, err) = run(&prefix, &["evaluate", "table1", "--out", &out_s]);
+    assert_eq!(code, 0, "{stdout}\n{err}");
+    assert!(stdout.contains("| taxel (this run) |"), "{stdout}");
+    let object = out.join("object-energy-drink.csv.gz");
+    let cal = out.join("curvature.toml");
+    let flat = out.join("flat.toml");
+    let model = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/models/curvature-default.taxcrv"
+    );
+
+    // The documented JSON of the offline protocol.
+    let (code, json, err) = run(
+        &prefix,
+        &[
+            "calibrator",
+            "eval",
+            "--curvature-model",
+            model,
+            "--calibration",
+            &cal.display().to_string(),
+            "--flat",
+            &flat.display().to_string(),
+            "--recording",
+            &object.display().to_string(),
+            "--json",
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(json.lines().count(), 1, "{json}");
+    assert!(
+        json.starts_with("{\"curvature_pred_m1\": ")
+            && json.contains("\"levels\": [{\"target_n\": 2, \"flat_mae_n\": "),
+        "{json}"
+    );
+    for key in [
+        "\"flat_sd_n\": ",
+        "\"curve_mae_n\": ",
+        "\"curve_sd_n\": ",
+        "\"target_n\": 8",
+    ] {
+        assert!(json.contains(key), "{key} in {json}");
+    }
+
+    // The same protocol as a library call, for per-frame forces.
+    let rec = Recording::read(&object).expect("recording");
+    let g = rec.geometry(Some(4), Some(4)).expect("geometry");
+    let m = taxel_estimator::model::CurvatureModel::load(Path::new(model)).expect("model");
+    let curve = taxel_calibrator::calibration::Calibration::load(&cal).expect("cal");
+    let flat_cal = taxel_calibrator::calibration::Calibration::load(&flat).expect("flat");
+    let report =
+        taxel_calibrator::evaluate::evaluate(&rec, g, &m, &curve, &flat_cal, &[2.0, 4.0, 6.0, 8.0])
+            .expect("evaluate");
+
+    // Live: one estimate from the start (as the protocol), replayed at 4x speed.
+    let rec_file = dir.path().join("live.taxrec").display().to_string();
+    let limit = Duration::from_secs(20);
+    let mut logger = spawn(
+        "logger",
+        &prefix,
+        &["logger", "record", "--sensor", "s0", "--out", &rec_file],
+    );
+    let mut calibrator = spawn(
+        "calibrator",
+        &prefix,
+        &[
+            "calibrator",
+            "run",
+            "--sensor",
+            "s0",
+            "--calibration",
+            &cal.display().to_string(),
+        ],
+    );
+    let mut estimator = spawn(
+        "estimator",
+        &prefix,
+        &[
+            "estimator",
+            "run",
+            "--sensor",
+            "s0",
+            "--model",
+            model,
+            "--min-interval-s",
+            "1e9",
+            "--rebaseline-s",
+            "1e9",
+        ],
+    );
+    for (p, what) in [
+        (&mut logger, "logger ready"),
+        (&mut calibrator, "calibrator ready"),
+        (&mut estimator, "estimator ready"),
+    ] {
+        p.wait_for(what, limit);
+    }
+    let mut publisher = spawn(
+        "publisher",
+        &prefix,
+        &[
+            "publisher",
+            "--sensor",
+            "s0",
+            "replay",
+            &object.display().to_string(),
+            "--speed",
+            "4",
+        ],
+    );
+    let st = publisher.wait_exit(Duration::from_secs(60));
+    assert!(st.success(), "publisher {st}");
+    for p in [&calibrator, &estimator, &logger] {
+        p.sigint();
+    }
+    for p in [&mut calibrator, &mut estimator, &mut logger] {
+        let st = p.wait_exit(limit);
+        assert!(st.success(), "{} exited {st}", p.name);
+    }
+    let mut live = BTreeMap::new();
+    for r in RecordFileReader::open(Path::new(&rec_file)).expect("record file") {
+        if let Record::Force {
+            seq,
+            flags,
+            block_force_n,
+            ..
+        } = r
+        {
+            if flags & taxel_msgs::force_flags::NO_BASELINE == 0 {
+                live.insert(seq, block_force_n[0]);
+            }
+        }
+    }
+    assert!(
+        live.len() > rec.len() * 9 / 10,
+        "{} of {} frames calibrated live",
+        live.len(),
+        rec.len()
+    );
+    let mut compared = 0;
+    for (seq, f) in &live {
+        let offline = report.forces[*seq as usize].0;
+        assert_eq!(*f, offline, "frame {seq}: live {f} N, offline {offline} N");
+        compared += 1;
+    }
+    assert!(compared > 1000);
+}
