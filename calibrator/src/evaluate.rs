@@ -150,10 +150,9 @@ pub fn evaluate(
                 let mut flat_est = *e;
                 flat_est.curvature_m1 = 0.0;
                 cal_flat.set_curvature(&flat_est);
+                // The estimate serves from the frame that completed its window on (live, that
+                // frame gets it or not depending on which process handles it first).
                 estimate = Some((e.curvature_m1 as f64, e.curvature_sd_m1 as f64, i));
-                // The estimate serves from the next frame on, as in the live pipeline.
-                forces.push((f32::NAN, f32::NAN));
-                continue;
             }
         }
         if estimate.is_none() {

@@ -55,8 +55,8 @@ fn fit_increments(t: &[f64], xs: &[f64], fs: &[f64]) -> (Vec<f64>, f64) {
     let mut row = vec![0.0; k];
     let mut ff = 0.0;
     for (&x, &f) in xs.iter().zip(fs) {
-        for j in 0..k {
-            row[j] = basis(t, j + 1, x);
+        for (j, r) in row.iter_mut().enumerate() {
+            *r = basis(t, j + 1, x);
         }
         for i in 0..k {
             if row[i] == 0.0 {

@@ -327,11 +327,7 @@ fn error_plot(path: &Path, reports: &[(String, f64, Report)]) -> anyhow::Result<
                 )
             })
             .collect(),
-        mark: Mark::Line,
-    };
-    let dots = |flat: bool, name: &str| Series {
-        mark: Mark::Points,
-        ..series(flat, name)
+        mark: Mark::LinePoints,
     };
     taxel_plot::write(
         path,
@@ -342,8 +338,6 @@ fn error_plot(path: &Path, reports: &[(String, f64, Report)]) -> anyhow::Result<
             series: vec![
                 series(true, "flat calibration"),
                 series(false, "curvature-aware calibration"),
-                dots(true, "flat, per object"),
-                dots(false, "curvature-aware, per object"),
             ],
             x_range: None,
             y_range: None,

@@ -71,6 +71,8 @@ pub struct Baseline {
     pub t_start_ns: u64,
     pub t_end_ns: u64,
     pub frames: usize,
+    /// Accepted as a new level after `rebaseline_s` (a remount), not as slow drift.
+    pub remount: bool,
 }
 
 /// Streaming detector; no allocation per frame.
@@ -189,6 +191,7 @@ impl BaselineDetector {
             // Accepted as a new baseline: publish now regardless of the interval.
             self.last_emit_ns = None;
         }
+        let remount = shift > self.cfg.contact_threshold;
         self.candidate = None;
         let due = self
             .last_emit_ns
@@ -205,6 +208,7 @@ impl BaselineDetector {
             t_start_ns: self.t_start_ns,
             t_end_ns: t_ns,
             frames,
+            remount,
         })
     }
 }
@@ -291,6 +295,7 @@ mod tests {
         assert!(feed(&mut d, [108.0, 108.0], 90).is_empty());
         let new = feed(&mut d, [108.0, 108.0], 30);
         assert!(!new.is_empty(), "remount accepted after rebaseline_s");
+        assert!(new[0].remount);
         assert!((new[0].mean[0] - 108.0).abs() < 1e-9);
         // A steady press 200 counts up on one node is never a baseline.
         assert!(feed(&mut d, [308.0, 108.0], 500).is_empty());

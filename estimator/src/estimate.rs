@@ -1,6 +1,12 @@
 //! The per-frame estimator: baseline detection, then the curvature from the model (or the
 //! configured value), into a `CurvatureEstimate`. The live process and offline evaluation
 //! (`taxel calibrator eval`) run this same code, so they produce the same estimates.
+//!
+//! Curvature belongs to the mounting, the baseline drifts: the curvature is predicted from the
+//! first no-load window and again after a remount, and held (flag `HELD`) while later windows
+//! only renew the baseline. A press leaves the unloaded reading shifted for a while (creep,
+//! hysteresis), which moves the baseline by as much as tens of 1/m of curvature signal;
+//! re-predicting from those windows would follow the loading history, not the surface.
 
 use taxel_msgs::{curvature_flags, CurvatureEstimate, RawFrame};
 
@@ -13,6 +19,8 @@ pub struct Estimator<'m> {
     model: Option<(&'m CurvatureModel, Predictor<'m>)>,
     configured_m1: f64,
     est: Box<CurvatureEstimate>,
+    /// Curvature, its sd and flags, from the window after the last mounting.
+    held: Option<(f32, f32, u32)>,
     count: u32,
     checked: bool,
 }
@@ -28,6 +36,7 @@ impl<'m> Estimator<'m> {
             model: model.map(|m| (m, m.predictor())),
             configured_m1,
             est: Box::new(CurvatureEstimate::ZERO),
+            held: None,
             count: 0,
             checked: false,
         }
@@ -61,8 +70,14 @@ impl<'m> Estimator<'m> {
         est.sensor = frame.sensor;
         est.rows = frame.rows;
         est.cols = frame.cols;
-        match self.model.as_mut() {
-            Some((m, p)) => {
+        match (self.model.as_mut(), self.held) {
+            (Some((m, _)), Some((c, sd, flags))) if !b.remount => {
+                est.curvature_m1 = c;
+                est.curvature_sd_m1 = sd;
+                est.model_version = m.model_version;
+                est.flags = flags | curvature_flags::HELD;
+            }
+            (Some((m, p)), _) => {
                 let pr = p.predict(&b.mean);
                 est.curvature_m1 = pr.curvature_m1.max(0.0) as f32;
                 est.curvature_sd_m1 = pr.sd_m1 as f32;
@@ -71,8 +86,9 @@ impl<'m> Estimator<'m> {
                 if pr.out_of_range {
                     est.flags |= curvature_flags::OUT_OF_RANGE;
                 }
+                self.held = Some((est.curvature_m1, est.curvature_sd_m1, est.flags));
             }
-            None => {
+            (None, _) => {
                 est.curvature_m1 = self.configured_m1 as f32;
                 est.curvature_sd_m1 = 0.0;
                 est.model_version = 0;

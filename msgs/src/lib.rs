@@ -132,6 +132,9 @@ pub mod curvature_flags {
     pub const ESTIMATED: u32 = 1 << 1;
     /// The estimate falls outside the range the model was trained on.
     pub const OUT_OF_RANGE: u32 = 1 << 2;
+    /// The curvature was predicted from the first no-load window after mounting and is held;
+    /// this estimate only renews the baseline (which drifts, e.g. after presses).
+    pub const HELD: u32 = 1 << 3;
 }
 
 /// The mounting curvature and the no-load baseline it was derived from.

@@ -23,6 +23,8 @@ fn register_font() {
 pub enum Mark {
     Line,
     Points,
+    /// A line with a dot at every point.
+    LinePoints,
 }
 
 /// One named series.
@@ -110,6 +112,17 @@ where
                         .map(|&p| Circle::new(p, 3, color.mix(0.7).filled())),
                 )
                 .map_err(|e| anyhow::anyhow!("{e:?}"))?,
+            Mark::LinePoints => {
+                chart
+                    .draw_series(s.points.iter().map(|&p| Circle::new(p, 4, color.filled())))
+                    .map_err(|e| anyhow::anyhow!("{e:?}"))?;
+                chart
+                    .draw_series(LineSeries::new(
+                        s.points.iter().copied(),
+                        color.stroke_width(2),
+                    ))
+                    .map_err(|e| anyhow::anyhow!("{e:?}"))?
+            }
         };
         anno.label(s.name.as_str())
             .legend(move |(x, y)| Rectangle::new([(x, y - 4), (x + 14, y + 4)], color.filled()));

@@ -1,0 +1,71 @@
+//! Applying a calibration to one frame (both blocks: the centre block and the whole array).
+//! Run: `cargo bench --bench calibration`.
+
+use std::sync::Arc;
+
+use criterion::{black_box, criterion_group, criterion_main, Criterion};
+use taxel_calibrator::calibration::Calibration;
+use taxel_calibrator::reload::Loaded;
+use taxel_calibrator::run::Calibrator;
+use taxel_msgs::{CurvatureEstimate, ForceSample, RawFrame};
+
+fn calibrator(text: &str) -> Calibrator {
+    let cal = Calibration::from_toml_str("bench", text).expect("calibration");
+    let mut c = Calibrator::new(
+        Arc::new(Loaded {
+            calibration: cal,
+            generation: 1,
+        }),
+        60.0,
+    );
+    let mut est = CurvatureEstimate::ZERO;
+    est.rows = 4;
+    est.cols = 4;
+    est.curvature_m1 = 35.0;
+    for b in est.baseline[..16].iter_mut() {
+        *b = 110.0;
+    }
+    c.set_curvature(&est);
+    c
+}
+
+fn bench(c: &mut Criterion) {
+    let mut frame = RawFrame::ZERO;
+    frame.rows = 4;
+    frame.cols = 4;
+    for (k, v) in frame.counts[..16].iter_mut().enumerate() {
+        *v = if [5, 6, 9, 10].contains(&k) {
+            260.0
+        } else {
+            111.0
+        };
+    }
+    let mut out = ForceSample::ZERO;
+    let poly = calibrator(include_str!("../calibrations/sim-default.toml"));
+    c.bench_function("calibration/apply paper form (2 blocks)", |b| {
+        b.iter(|| poly.apply(black_box(&frame), 0, black_box(&mut out)))
+    });
+    let physics = calibrator(
+        r#"
+id = "bench-physics"
+version = 1
+rows = 4
+cols = 4
+[array]
+name = "array"
+model = { form = "physics", curvature_gain = [8e-3, 1e-6], x = [0, 50, 100, 200, 300, 400, 500, 650, 800, 950, 1100, 1250, 1400], f = [0, 0.6, 1.2, 2.5, 3.8, 5.2, 6.6, 8.8, 11, 13.3, 15.6, 18, 20.5] }
+range = { s = [0, 1250], curvature_m1 = [0, 100] }
+[[block]]
+name = "center"
+nodes = [5, 6, 9, 10]
+model = { form = "physics", curvature_gain = [8e-3, 1e-6], x = [0, 50, 100, 200, 300, 400, 500, 650, 800, 950, 1100, 1250, 1400], f = [0, 0.6, 1.2, 2.5, 3.8, 5.2, 6.6, 8.8, 11, 13.3, 15.6, 18, 20.5] }
+range = { s = [0, 1250], curvature_m1 = [0, 100] }
+"#,
+    );
+    c.bench_function("calibration/apply physics form (2 blocks)", |b| {
+        b.iter(|| physics.apply(black_box(&frame), 0, black_box(&mut out)))
+    });
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
