@@ -11,6 +11,8 @@ use taxel_runtime::Shutdown;
 use taxel_sim::{Scenario, SensorModel};
 use tracing::info;
 
+use crate::serial::protocol::Format;
+use crate::serial::SerialConfig;
 use crate::source::{ReplaySource, SimSource, Source};
 
 /// Publishes raw frames of one sensor from a source.
@@ -35,6 +37,33 @@ pub enum SourceArgs {
     Sim(SimArgs),
     /// Play back a recording CSV (schema in the README), pacing frames by its t_s.
     Replay(ReplayArgs),
+    /// The readout board over a serial port (docs/serial-protocol.md).
+    Serial(SerialArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct SerialArgs {
+    /// Serial device, e.g. /dev/ttyACM0.
+    #[arg(long)]
+    pub port: PathBuf,
+    /// Baud rate.
+    #[arg(long, default_value_t = 115_200)]
+    pub baud: u32,
+    /// Wire format; auto detects it from the first frames and logs which.
+    #[arg(long, value_enum, default_value_t = Format::Auto)]
+    pub format: Format,
+    /// Rows of the array.
+    #[arg(long, default_value_t = 4)]
+    pub rows: usize,
+    /// Columns of the array.
+    #[arg(long, default_value_t = 4)]
+    pub cols: usize,
+    /// Largest valid reading (1023 for a 10-bit ADC); larger values are skipped.
+    #[arg(long, default_value_t = 1023)]
+    pub max_count: u16,
+    /// No valid frame for this long: the device is stalled (s).
+    #[arg(long, default_value_t = 1.0)]
+    pub stall_s: f64,
 }
 
 #[derive(Debug, clap::Args)]
@@ -174,6 +203,7 @@ fn run(args: Args) -> Result<(), Failure> {
             }
             Box::new(src)
         }
+        SourceArgs::Serial(a) => return serial(&args, a),
         SourceArgs::Replay(a) => Box::new(
             ReplaySource::open(&a.file, a.rows, a.cols, a.speed, a.full_scale, a.repeat)
                 .config_err()?,
@@ -189,6 +219,48 @@ fn run(args: Args) -> Result<(), Failure> {
         frames = s.frames,
         seconds = format!("{:.1}", s.seconds),
         late_resets = s.late_resets,
+        "publisher stopped"
+    );
+    Ok(())
+}
+
+fn serial(args: &Args, a: &SerialArgs) -> Result<(), Failure> {
+    if !(1..=32).contains(&a.rows) || !(1..=32).contains(&a.cols) {
+        return Err(Failure::config(anyhow::anyhow!(
+            "--rows and --cols must be 1..=32, got {} x {}",
+            a.rows,
+            a.cols
+        )));
+    }
+    if !(a.stall_s.is_finite() && a.stall_s > 0.0) || a.baud == 0 {
+        return Err(Failure::config(anyhow::anyhow!(
+            "--stall-s must be positive and --baud non-zero"
+        )));
+    }
+    let cfg = SerialConfig {
+        port: a.port.clone(),
+        baud: a.baud,
+        format: a.format,
+        rows: a.rows,
+        cols: a.cols,
+        max_count: a.max_count,
+        stall_s: a.stall_s,
+    };
+    let shutdown = Shutdown::install().runtime_err()?;
+    let ipc = Ipc::open(&args.common.prefix, &format!("publisher-{}", args.sensor)).runtime_err()?;
+    let s = crate::serial::run(&ipc, &args.sensor, &cfg, args.seconds, &shutdown).runtime_err()?;
+    info!(
+        sensor = %args.sensor,
+        frames = s.frames,
+        bytes = s.bytes,
+        bad_crc = s.skipped.bad_crc,
+        wrong_node_count = s.skipped.wrong_node_count,
+        out_of_range = s.skipped.out_of_range,
+        bad_line = s.skipped.bad_line,
+        garbage_bytes = s.skipped.garbage_bytes,
+        device_lost = s.device_lost,
+        reconnects = s.reconnects,
+        stalls = s.stalls,
         "publisher stopped"
     );
     Ok(())

@@ -6,4 +6,5 @@
 
 pub mod cli;
 pub mod run;
+pub mod serial;
 pub mod source;
