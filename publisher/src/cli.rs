@@ -247,7 +247,8 @@ fn serial(args: &Args, a: &SerialArgs) -> Result<(), Failure> {
         stall_s: a.stall_s,
     };
     let shutdown = Shutdown::install().runtime_err()?;
-    let ipc = Ipc::open(&args.common.prefix, &format!("publisher-{}", args.sensor)).runtime_err()?;
+    let ipc =
+        Ipc::open(&args.common.prefix, &format!("publisher-{}", args.sensor)).runtime_err()?;
     let s = crate::serial::run(&ipc, &args.sensor, &cfg, args.seconds, &shutdown).runtime_err()?;
     info!(
         sensor = %args.sensor,

@@ -43,7 +43,8 @@ impl ClockModel {
         if self.points.len() == WINDOW {
             self.points.pop_front();
         }
-        self.points.push_back((device_us as f64, host_ns as f64 / 1000.0));
+        self.points
+            .push_back((device_us as f64, host_ns as f64 / 1000.0));
     }
 
     /// Forgets everything (device restarted or reconnected).

@@ -81,7 +81,12 @@ pub fn run(
     shutdown: &Shutdown,
 ) -> anyhow::Result<SerialStats> {
     let n = cfg.rows * cfg.cols;
-    anyhow::ensure!((1..=MAX_NODES).contains(&n), "{} x {} nodes is not supported", cfg.rows, cfg.cols);
+    anyhow::ensure!(
+        (1..=MAX_NODES).contains(&n),
+        "{} x {} nodes is not supported",
+        cfg.rows,
+        cfg.cols
+    );
     let raw = ipc.publisher::<RawFrame>(sensor, Stream::Raw)?;
     let mut frame = RawFrame::ZERO;
     frame.sensor = sensor_id_bytes(sensor)?;
@@ -175,9 +180,17 @@ pub fn run(
             continue;
         };
         let got = match l.port.read(&mut buf) {
-            Ok(0) => Err(std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "end of file")),
+            Ok(0) => Err(std::io::Error::new(
+                std::io::ErrorKind::UnexpectedEof,
+                "end of file",
+            )),
             Ok(k) => Ok(k),
-            Err(e) if e.kind() == std::io::ErrorKind::TimedOut || e.kind() == std::io::ErrorKind::WouldBlock => Ok(0),
+            Err(e)
+                if e.kind() == std::io::ErrorKind::TimedOut
+                    || e.kind() == std::io::ErrorKind::WouldBlock =>
+            {
+                Ok(0)
+            }
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => Ok(0),
             Err(e) => Err(e),
         };
@@ -199,10 +212,15 @@ pub fn run(
         stats.bytes += k as u64;
         if k == 0 {
             if !l.stalled && l.last_frame.elapsed() > stall {
-                warn!(sensor, "serial device stalled: no valid frame for {:.1} s", stall.as_secs_f64());
+                warn!(
+                    sensor,
+                    "serial device stalled: no valid frame for {:.1} s",
+                    stall.as_secs_f64()
+                );
                 l.stalled = true;
                 stats.stalls += 1;
                 gap = true;
+                clock.reset();
                 // A partial frame before the stall will not complete: drop it.
                 if let Some(p) = l.parser.as_mut() {
                     let fmt = match p {
@@ -212,6 +230,7 @@ pub fn run(
                     let s = p.skipped();
                     add(&mut stats.skipped, &s);
                     *p = Parser::new(fmt, n, cfg.max_count);
+                    l.skipped_base = SkipCounts::default();
                 }
             }
             continue;
@@ -241,10 +260,17 @@ pub fn run(
         let Some(p) = l.parser.as_mut() else {
             continue;
         };
-        while let Some(DeviceFrame { seq, time_us, counts }) = p.next_frame() {
+        while let Some(DeviceFrame {
+            seq,
+            time_us,
+            counts,
+        }) = p.next_frame()
+        {
             let t = now_ns();
             let skipped_now = p.skipped();
-            let skipped_frames = skipped_now.frames_skipped() - l.skipped_base.frames_skipped();
+            let skipped_frames = skipped_now
+                .frames_skipped()
+                .saturating_sub(l.skipped_base.frames_skipped());
             l.skipped_base = skipped_now;
             let mut lost = 0u64;
             if let (Some(s), Some(last)) = (seq, last_dev_seq) {
@@ -263,7 +289,11 @@ pub fn run(
                 last_dev_seq = Some(s);
             }
             if let Some(tu) = time_us {
-                let wrap = if seq.is_some() { 1u64 << 32 } else { u64::MAX / 4 };
+                let wrap = if seq.is_some() {
+                    1u64 << 32
+                } else {
+                    u64::MAX / 4
+                };
                 let dev = clock.unwrap(tu, wrap);
                 clock.add(dev, t);
             }

@@ -242,7 +242,8 @@ impl AsciiParser {
             self.skipped.wrong_node_count += 1;
             return;
         };
-        if counts.iter().any(|&c| c < 0 || c as f64 > self.max_count) || time.is_some_and(|t| t < 0) {
+        if counts.iter().any(|&c| c < 0 || c as f64 > self.max_count) || time.is_some_and(|t| t < 0)
+        {
             self.skipped.out_of_range += 1;
             return;
         }
@@ -345,7 +346,10 @@ mod tests {
             let parts: Vec<&str> = line.split_whitespace().collect();
             let seq: u32 = parts[1].parse().expect("seq");
             let time: u32 = parts[2].parse().expect("time");
-            let counts: Vec<u16> = parts[3].split(',').map(|c| c.parse().expect("count")).collect();
+            let counts: Vec<u16> = parts[3]
+                .split(',')
+                .map(|c| c.parse().expect("count"))
+                .collect();
             let hex: String = parts[4..].concat();
             let bytes: Vec<u8> = (0..hex.len())
                 .step_by(2)
@@ -430,7 +434,11 @@ mod tests {
                 assert!(seqs.windows(2).all(|w| w[0] < w[1]));
                 let want: Vec<u32> = good.iter().filter_map(|f| f.seq).collect();
                 let missing = want.iter().filter(|s| !seqs.contains(s)).count();
-                assert!(missing * 20 <= want.len(), "trial {trial}: lost {missing} of {}", want.len());
+                assert!(
+                    missing * 20 <= want.len(),
+                    "trial {trial}: lost {missing} of {}",
+                    want.len()
+                );
                 for f in &got {
                     assert!(good.contains(f), "only intact frames are delivered");
                 }
@@ -465,7 +473,10 @@ mod tests {
         let mut a = AsciiParser::new(4, 1023);
         a.push(b"# board v1\n\n1,2,3,4\r\n1000\t5 6 7 8\nx,1,2,3\n1,2,3\n1,2,3,4000\n");
         let f1 = a.next_frame().expect("plain");
-        assert_eq!((f1.time_us, f1.counts.clone()), (None, vec![1.0, 2.0, 3.0, 4.0]));
+        assert_eq!(
+            (f1.time_us, f1.counts.clone()),
+            (None, vec![1.0, 2.0, 3.0, 4.0])
+        );
         let f2 = a.next_frame().expect("timed");
         assert_eq!((f2.time_us, f2.counts[0]), (Some(1000), 5.0));
         assert!(a.next_frame().is_none());
