@@ -222,10 +222,7 @@ impl AsciiParser {
             return;
         }
         let mut values = Vec::with_capacity(self.nodes + 1);
-        for field in text
-            .split(|c: char| c == ',' || c == ' ' || c == '\t')
-            .filter(|f| !f.is_empty())
-        {
+        for field in text.split([',', ' ', '\t']).filter(|f| !f.is_empty()) {
             match field.parse::<i64>() {
                 Ok(v) => values.push(v),
                 Err(_) => {
@@ -375,7 +372,7 @@ mod tests {
             for _ in 0..(rng.next_u64() % 4) {
                 bytes.push((rng.next_u64() & 0xFF) as u8);
             }
-            if rng.next_u64() % 13 == 0 {
+            if rng.next_u64().is_multiple_of(13) {
                 bytes.extend_from_slice(&SYNC);
             }
             let counts: Vec<u16> = (0..nodes).map(|_| (rng.next_u64() % 1024) as u16).collect();
