@@ -337,3 +337,83 @@ fn late_calibrator_gets_the_latest_curvature_from_history() {
     assert_eq!(last.2, 30.0, "curvature from the estimator's history");
     assert!((last.1 - 5.0).abs() < 0.6, "force {} N", last.1);
 }
+
+#[test]
+fn every_wake_mode_receives_every_sample() {
+    let prefix = unique_prefix("w");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cal = dir.path().join("cal.toml");
+    std::fs::write(&cal, SIM_CAL).expect("write calibration");
+    let cal_s = cal.display().to_string();
+    let limit = Duration::from_secs(20);
+    let mut calibrator = spawn(
+        "calibrator",
+        &prefix,
+        &[
+            "calibrator",
+            "run",
+            "--sensor",
+            "s0",
+            "--calibration",
+            &cal_s,
+            "--wake",
+            "adaptive",
+        ],
+    );
+    calibrator.wait_for("calibrator ready", limit);
+    let mut probes: Vec<_> = ["event", "busy", "adaptive"]
+        .iter()
+        .map(|m| {
+            let mut p = spawn(
+                m,
+                &prefix,
+                &[
+                    "latency",
+                    "--sensor",
+                    "s0",
+                    "--seconds",
+                    "3",
+                    "--json",
+                    "--wake",
+                    m,
+                ],
+            );
+            p.wait_for("latency probe ready", limit);
+            p
+        })
+        .collect();
+    let mut publisher = spawn(
+        "publisher",
+        &prefix,
+        &[
+            "publisher",
+            "--sensor",
+            "s0",
+            "--seconds",
+            "4",
+            "sim",
+            "--rate-hz",
+            "500",
+        ],
+    );
+    for p in probes.iter_mut() {
+        let st = p.wait_exit(limit);
+        assert!(st.success(), "{} probe exited {st}", p.name);
+        let out = p.output();
+        let json = out.lines().find(|l| l.starts_with('{')).expect("json");
+        let field = |k: &str| -> f64 {
+            let at = json.find(k).expect("key") + k.len();
+            json[at..]
+                .split([',', '}'])
+                .next()
+                .and_then(|v| v.trim().parse().ok())
+                .expect("number")
+        };
+        // 3 s at 500 Hz, started before the stream: about 1500 samples, none lost.
+        assert!(field("\"received\": ") > 1200.0, "{}: {json}", p.name);
+        assert_eq!(field("\"dropped\": "), 0.0, "{}: {json}", p.name);
+    }
+    assert!(publisher.wait_exit(limit).success());
+    calibrator.sigint();
+    assert!(calibrator.wait_exit(limit).success());
+}

@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 use taxel_formats::Recording;
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
+use taxel_runtime::wake::WakeMode;
 use taxel_runtime::Shutdown;
 use tracing::info;
 
@@ -80,6 +81,9 @@ pub struct RunArgs {
     /// Array columns.
     #[arg(long)]
     pub cols: Option<usize>,
+    /// How to wait for raw frames: event (default), busy, or adaptive.
+    #[arg(long, value_enum, default_value_t = WakeMode::Event)]
+    pub wake: WakeMode,
 }
 
 #[derive(Debug, clap::Args)]
@@ -145,6 +149,7 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
         sensor: a.sensor.clone(),
         calibration: a.calibration.clone(),
         curvature_stale_s: a.curvature_stale_s,
+        wake: a.wake,
     };
     let shutdown = Shutdown::install().runtime_err()?;
     let ipc = Ipc::open(&common.prefix, &format!("calibrator-{}", a.sensor)).runtime_err()?;
@@ -154,6 +159,11 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
         frames = s.frames,
         dropped = s.dropped,
         reloads = s.reloads,
+        adaptive_caught = s.wake.caught,
+        adaptive_fallbacks = s.wake.fallbacks,
+        adaptive_spin_ms = s.wake.spin_ns / 1_000_000,
+        adaptive_learned_us = ?s.wake.learned_us,
+        cpu_s = format!("{:.2}", taxel_runtime::process::cpu_seconds()),
         "calibrator stopped"
     );
     Ok(())

@@ -6,12 +6,12 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use iceoryx2::prelude::*;
 use taxel_msgs::{
     force_flags, raw_flags, CurvatureEstimate, ForceSample, RawFrame, Stream, MAX_BLOCKS, MAX_NODES,
 };
-use taxel_runtime::ipc::{self, Ipc};
+use taxel_runtime::ipc::Ipc;
 use taxel_runtime::stats::SeqTracker;
+use taxel_runtime::wake::{receive_loop, WakeMode};
 use taxel_runtime::{now_ns, Shutdown};
 use tracing::{debug, error, info};
 
@@ -25,6 +25,8 @@ pub struct Config {
     pub calibration: PathBuf,
     /// A curvature estimate (baseline) older than this is flagged stale (s).
     pub curvature_stale_s: f64,
+    /// How to wait for raw frames.
+    pub wake: WakeMode,
 }
 
 /// What a run did.
@@ -34,6 +36,8 @@ pub struct Summary {
     pub dropped: u64,
     pub reloads: u32,
     pub geometry_mismatches: u64,
+    /// What the adaptive wake-up did (zero in other modes).
+    pub wake: taxel_runtime::wake::AdaptiveStats,
 }
 
 /// The pure per-frame computation (shared with offline evaluation).
@@ -159,13 +163,6 @@ pub fn run(
     let raw = ipc.subscriber::<RawFrame>(&cfg.sensor, Stream::Raw)?;
     let curv = ipc.subscriber::<CurvatureEstimate>(&cfg.sensor, Stream::Curvature)?;
     let force = ipc.publisher::<ForceSample>(&cfg.sensor, Stream::Force)?;
-    let ws = ipc::waitset()?;
-    let raw_guard = ws
-        .attach_notification(raw.listener())
-        .map_err(|e| anyhow::anyhow!("attach raw listener: {e:?}"))?;
-    let curv_guard = ws
-        .attach_notification(curv.listener())
-        .map_err(|e| anyhow::anyhow!("attach curvature listener: {e:?}"))?;
     info!(
         sensor = %cfg.sensor,
         file = %cfg.calibration.display(),
@@ -181,80 +178,62 @@ pub fn run(
     let mut summary = Summary::default();
     let mut seq = SeqTracker::default();
     let mut mismatch_reported = false;
-    let mut failure: Option<anyhow::Error> = None;
     let mut last_report = Instant::now();
     let mut frames_at_report = 0;
-    while !shutdown.requested() && failure.is_none() {
-        ws.wait_and_process_once_with_timeout(
-            |id| {
-                if id.has_event_from(&curv_guard) {
-                    match curv.latest() {
-                        Ok(Some(est)) => {
-                            debug!(curvature_m1 = est.curvature_m1, "new curvature estimate");
-                            cal.set_curvature(&est);
-                        }
-                        Ok(None) => {}
-                        Err(e) => failure = Some(e.into()),
-                    }
+    let wake = receive_loop(
+        &raw,
+        cfg.wake,
+        shutdown,
+        None,
+        |f| f.t_capture_ns,
+        |frame, _| {
+            // Curvature estimates are rare and history for a late joiner comes without a
+            // wake-up: look on every frame (a cheap check).
+            if let Some(est) = curv.poll_latest()? {
+                debug!(curvature_m1 = est.curvature_m1, "new curvature estimate");
+                cal.set_curvature(&est);
+            }
+            if let Some(l) = watcher.try_next() {
+                info!(
+                    version = l.calibration.version,
+                    generation = l.generation,
+                    "now serving reloaded calibration"
+                );
+                cal.loaded = l;
+                summary.reloads += 1;
+            }
+            if (frame.rows as usize, frame.cols as usize) != (rows, cols) {
+                summary.geometry_mismatches += 1;
+                if !mismatch_reported {
+                    error!(
+                        "sensor streams {} x {} frames but the calibration is for {rows} x {cols}; frames are skipped",
+                        frame.rows, frame.cols
+                    );
+                    mismatch_reported = true;
                 }
-                if id.has_event_from(&raw_guard) {
-                    // History for a late joiner arrives without a wake-up: look each time.
-                    match curv.poll_latest() {
-                        Ok(Some(est)) => cal.set_curvature(&est),
-                        Ok(None) => {}
-                        Err(e) => failure = Some(e.into()),
-                    }
-                    let r = raw.drain(|frame| {
-                        if let Some(l) = watcher.try_next() {
-                            info!(
-                                version = l.calibration.version,
-                                generation = l.generation,
-                                "now serving reloaded calibration"
-                            );
-                            cal.loaded = l;
-                            summary.reloads += 1;
-                        }
-                        if (frame.rows as usize, frame.cols as usize) != (rows, cols) {
-                            summary.geometry_mismatches += 1;
-                            if !mismatch_reported {
-                                error!(
-                                    "sensor streams {} x {} frames but the calibration is for {rows} x {cols}; frames are skipped",
-                                    frame.rows, frame.cols
-                                );
-                                mismatch_reported = true;
-                            }
-                            return;
-                        }
-                        seq.observe(frame.seq);
-                        cal.apply(frame, now_ns(), &mut out);
-                        out.t_publish_ns = now_ns();
-                        if let Err(e) = force.send(&out) {
-                            failure = Some(e.into());
-                        }
-                        summary.frames += 1;
-                    });
-                    if let Err(e) = r {
-                        failure = Some(e.into());
-                    }
-                }
-                CallbackProgression::Continue
-            },
-            ipc::TICK,
-        )
-        .map_err(|e| anyhow::anyhow!("waitset: {e:?}"))?;
-        if last_report.elapsed() >= Duration::from_secs(1) {
-            debug!(
-                fps = (summary.frames - frames_at_report) as f64
-                    / last_report.elapsed().as_secs_f64(),
-                "calibrating"
-            );
-            last_report = Instant::now();
-            frames_at_report = summary.frames;
-        }
-    }
-    if let Some(e) = failure {
-        return Err(e);
-    }
+                return Ok(());
+            }
+            seq.observe(frame.seq);
+            cal.apply(frame, now_ns(), &mut out);
+            out.t_publish_ns = now_ns();
+            force.send(&out)?;
+            summary.frames += 1;
+            if summary.frames % 256 == 0 && last_report.elapsed() >= Duration::from_secs(1) {
+                debug!(
+                    fps = (summary.frames - frames_at_report) as f64
+                        / last_report.elapsed().as_secs_f64(),
+                    "calibrating"
+                );
+                last_report = Instant::now();
+                frames_at_report = summary.frames;
+            }
+            Ok(())
+        },
+        || {
+            let _ = curv.clear_wakeups();
+        },
+    )?;
+    summary.wake = wake;
     summary.dropped = seq.dropped;
     Ok(summary)
 }

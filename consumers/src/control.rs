@@ -8,11 +8,11 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use clap::Parser;
-use iceoryx2::prelude::*;
 use taxel_msgs::{force_flags, ForceSample, Stream};
-use taxel_runtime::ipc::{self, Ipc};
+use taxel_runtime::ipc::Ipc;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
 use taxel_runtime::stats::SeqTracker;
+use taxel_runtime::wake::{receive_loop, WakeMode};
 use taxel_runtime::{now_ns, Shutdown};
 
 use crate::age::AgeHistogram;
@@ -47,6 +47,9 @@ pub struct Args {
     /// Do not print the once-a-second status line.
     #[arg(long)]
     pub quiet: bool,
+    /// How to wait for force samples: event (default), busy, or adaptive.
+    #[arg(long, value_enum, default_value_t = WakeMode::Event)]
+    pub wake: WakeMode,
 }
 
 /// The simulated hand: grip command in [0, 1] drives the grip position with a 50 ms lag.
@@ -205,15 +208,10 @@ fn run(a: Args) -> Result<(), Failure> {
     let force = ipc
         .subscriber::<ForceSample>(&a.sensor, Stream::Force)
         .runtime_err()?;
-    let ws = ipc::waitset().runtime_err()?;
-    let watchdog = Duration::from_secs_f64(a.watchdog_ms / 1000.0).max(Duration::from_millis(1));
-    let guard = ws
-        .attach_deadline(force.listener(), watchdog)
-        .map_err(|e| anyhow::anyhow!("attach force listener: {e:?}"))
-        .runtime_err()?;
-    tracing::info!(sensor = %a.sensor, target_n = a.target_n, "control ready");
+    let watchdog_ns = (a.watchdog_ms * 1e6) as u64;
+    tracing::info!(sensor = %a.sensor, target_n = a.target_n, wake = ?a.wake, "control ready");
     let deadline_ns = (a.deadline_ms * 1e6) as u64;
-    let mut st = State {
+    let st = std::cell::RefCell::new(State {
         pi: Pi {
             kp: a.kp,
             ki: a.ki,
@@ -229,46 +227,44 @@ fn run(a: Args) -> Result<(), Failure> {
         safe: true,
         safe_entries: 0,
         last_t: None,
-    };
-    let mut failure = None;
+    });
+    let last_arrival = std::cell::Cell::new(now_ns());
     let start = Instant::now();
     let mut last_report = start;
-    while !shutdown.requested() && failure.is_none() {
-        if a.seconds
-            .is_some_and(|s| start.elapsed().as_secs_f64() >= s)
-        {
-            break;
-        }
-        ws.wait_and_process_once_with_timeout(
-            |id| {
-                if id.has_missed_deadline(&guard) && !st.safe {
-                    st.enter_safe();
-                    tracing::warn!(sensor = %a.sensor, "no force sample for {:.0} ms: safe state", a.watchdog_ms);
-                }
-                if id.has_event_from(&guard) {
-                    if let Err(e) = force.drain(|f| st.on_sample(f, a.target_n, deadline_ns)) {
-                        failure = Some(e);
-                    }
-                }
-                CallbackProgression::Continue
-            },
-            ipc::TICK,
-        )
-        .map_err(|e| anyhow::anyhow!("waitset: {e:?}"))
-        .runtime_err()?;
-        let el = last_report.elapsed();
-        if el >= Duration::from_secs(1) {
-            if !a.quiet {
-                println!(
-                    "{}",
-                    st.status_line(&a.sensor, st.window_samples as f64 / el.as_secs_f64())
-                );
+    let until = a.seconds.map(|s| start + Duration::from_secs_f64(s));
+    let result = receive_loop(
+        &force,
+        a.wake,
+        &shutdown,
+        until,
+        |f| f.t_capture_ns,
+        |f, t| {
+            last_arrival.set(t);
+            st.borrow_mut().on_sample(f, a.target_n, deadline_ns);
+            Ok(())
+        },
+        || {
+            let mut s = st.borrow_mut();
+            if !s.safe && now_ns().saturating_sub(last_arrival.get()) > watchdog_ns {
+                s.enter_safe();
+                tracing::warn!(sensor = %a.sensor, "no force sample for {:.0} ms: safe state", a.watchdog_ms);
             }
-            st.window_samples = 0;
-            st.window.reset();
-            last_report = Instant::now();
-        }
-    }
+            let el = last_report.elapsed();
+            if el >= Duration::from_secs(1) {
+                if !a.quiet {
+                    println!(
+                        "{}",
+                        s.status_line(&a.sensor, s.window_samples as f64 / el.as_secs_f64())
+                    );
+                }
+                s.window_samples = 0;
+                s.window.reset();
+                last_report = Instant::now();
+            }
+        },
+    );
+    let st = st.into_inner();
+    let failure = result.err();
     if let Some(e) = failure {
         return Err(Failure::runtime(e));
     }

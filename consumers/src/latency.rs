@@ -7,9 +7,10 @@ use std::time::Instant;
 use clap::Parser;
 use iceoryx2::prelude::*;
 use taxel_msgs::{ForceSample, RawFrame, Stream};
-use taxel_runtime::ipc::{self, Ipc, StreamSubscriber};
+use taxel_runtime::ipc::{Ipc, StreamSubscriber};
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
 use taxel_runtime::stats::SeqTracker;
+use taxel_runtime::wake::{receive_loop, WakeMode};
 use taxel_runtime::{now_ns, Shutdown};
 
 use crate::age::{json_report, AgeHistogram};
@@ -32,6 +33,9 @@ pub struct Args {
     /// Which stream to measure.
     #[arg(long, default_value = "force", value_parser = ["force", "raw"])]
     pub stream: String,
+    /// How to wait for samples.
+    #[arg(long, value_enum, default_value_t = WakeMode::Event)]
+    pub wake: WakeMode,
 }
 
 pub fn main(args: Args) -> ExitCode {
@@ -42,44 +46,30 @@ pub fn main(args: Args) -> ExitCode {
 fn measure<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     sub: &StreamSubscriber<T>,
     stamp: impl Fn(&T) -> (u64, u64),
+    mode: WakeMode,
     seconds: Option<f64>,
     shutdown: &Shutdown,
 ) -> anyhow::Result<(SeqTracker, AgeHistogram, f64)> {
-    let ws = ipc::waitset()?;
-    let guard = ws
-        .attach_notification(sub.listener())
-        .map_err(|e| anyhow::anyhow!("attach listener: {e:?}"))?;
-    tracing::info!("latency probe ready on {}", sub.name());
+    tracing::info!("latency probe ready on {} ({mode:?} wake-up)", sub.name());
     let mut seq = SeqTracker::default();
     let mut h = AgeHistogram::new();
-    let mut failure = None;
     let start = Instant::now();
-    while !shutdown.requested() && failure.is_none() {
-        if seconds.is_some_and(|s| start.elapsed().as_secs_f64() >= s) {
-            break;
-        }
-        ws.wait_and_process_once_with_timeout(
-            |id| {
-                if id.has_event_from(&guard) {
-                    let r = sub.drain(|v| {
-                        let now = now_ns();
-                        let (s, t) = stamp(v);
-                        h.record_ns(now.saturating_sub(t));
-                        seq.observe(s);
-                    });
-                    if let Err(e) = r {
-                        failure = Some(e);
-                    }
-                }
-                CallbackProgression::Continue
-            },
-            ipc::TICK,
-        )
-        .map_err(|e| anyhow::anyhow!("waitset: {e:?}"))?;
-    }
-    if let Some(e) = failure {
-        return Err(e.into());
-    }
+    let until = seconds.map(|s| start + std::time::Duration::from_secs_f64(s));
+    receive_loop(
+        sub,
+        mode,
+        shutdown,
+        until,
+        |v| stamp(v).1,
+        |v, _| {
+            let now = now_ns();
+            let (s, t) = stamp(v);
+            h.record_ns(now.saturating_sub(t));
+            seq.observe(s);
+            Ok(())
+        },
+        || {},
+    )?;
     Ok((seq, h, start.elapsed().as_secs_f64()))
 }
 
@@ -98,12 +88,26 @@ fn run(a: Args) -> Result<(), Failure> {
         let sub = ipc
             .subscriber::<RawFrame>(&a.sensor, Stream::Raw)
             .runtime_err()?;
-        measure(&sub, |f| (f.seq, f.t_capture_ns), a.seconds, &shutdown).runtime_err()?
+        measure(
+            &sub,
+            |f| (f.seq, f.t_capture_ns),
+            a.wake,
+            a.seconds,
+            &shutdown,
+        )
+        .runtime_err()?
     } else {
         let sub = ipc
             .subscriber::<ForceSample>(&a.sensor, Stream::Force)
             .runtime_err()?;
-        measure(&sub, |f| (f.seq, f.t_capture_ns), a.seconds, &shutdown).runtime_err()?
+        measure(
+            &sub,
+            |f| (f.seq, f.t_capture_ns),
+            a.wake,
+            a.seconds,
+            &shutdown,
+        )
+        .runtime_err()?
     };
     if a.json {
         println!(

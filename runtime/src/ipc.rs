@@ -7,7 +7,7 @@
 use std::fmt::Debug;
 use std::time::Duration;
 
-use iceoryx2::port::listener::Listener;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -213,9 +213,7 @@ impl<T: Debug + ZeroCopySend + Copy + 'static> StreamSubscriber<T> {
     /// Clears pending wake-ups and hands every waiting sample to `f`, oldest first. Returns
     /// how many samples were handled.
     pub fn drain(&self, mut f: impl FnMut(&T)) -> Result<usize, IpcError> {
-        self.listener
-            .try_wait(|_| {})
-            .map_err(|e| err(format!("listener on {}", self.name), e))?;
+        self.clear_wakeups()?;
         let mut n = 0;
         loop {
             match self.subscriber.receive() {
@@ -234,6 +232,42 @@ impl<T: Debug + ZeroCopySend + Copy + 'static> StreamSubscriber<T> {
         let mut last = None;
         self.drain(|v| last = Some(*v))?;
         Ok(last)
+    }
+
+    /// Hands every waiting sample to `f` without touching the wake-up listener (polling
+    /// modes); returns how many.
+    pub fn poll_each(
+        &self,
+        mut f: impl FnMut(&T) -> Result<(), IpcError>,
+    ) -> Result<usize, IpcError> {
+        let mut n = 0;
+        loop {
+            match self.subscriber.receive() {
+                Ok(Some(sample)) => {
+                    f(sample.payload())?;
+                    n += 1;
+                }
+                Ok(None) => return Ok(n),
+                Err(e) => return Err(err(format!("receive on {}", self.name), e)),
+            }
+        }
+    }
+
+    /// Discards pending wake-ups (polling modes call this off the critical path).
+    pub fn clear_wakeups(&self) -> Result<(), IpcError> {
+        match self.listener.try_wait(|_| {}) {
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(()),
+            Err(e) => Err(err(format!("listener on {}", self.name), e)),
+        }
+    }
+
+    /// Blocks until a wake-up arrives, a signal interrupts (the caller checks its shutdown
+    /// flag), or `timeout` passes.
+    pub fn wait_wakeup(&self, timeout: Duration) -> Result<(), IpcError> {
+        match self.listener.timed_wait(|_| {}, timeout) {
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(()),
+            Err(e) => Err(err(format!("listener on {}", self.name), e)),
+        }
     }
 
     /// Like [`StreamSubscriber::latest`] but without touching the wake-up listener: a cheap

@@ -10,6 +10,7 @@ pub mod ipc;
 pub mod process;
 pub mod progress;
 pub mod stats;
+pub mod wake;
 
 pub use clock::now_ns;
 pub use ipc::{Ipc, StreamPublisher, StreamSubscriber};
