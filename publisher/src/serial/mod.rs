@@ -17,7 +17,7 @@ use taxel_runtime::{now_ns, Shutdown};
 use tracing::{info, warn};
 
 use clock::ClockModel;
-use protocol::{detect, DeviceFrame, Format, Parser, SkipCounts};
+use protocol::{detect, Format, Parser, SkipCounts};
 
 /// Serial source settings.
 #[derive(Debug, Clone)]
@@ -260,12 +260,14 @@ pub fn run(
         let Some(p) = l.parser.as_mut() else {
             continue;
         };
-        while let Some(DeviceFrame {
-            seq,
-            time_us,
-            counts,
-        }) = p.next_frame()
-        {
+        loop {
+            let (seq, time_us) = match p.next_frame() {
+                Some(f) => {
+                    frame.counts[..n].copy_from_slice(f.counts);
+                    (f.seq, f.time_us)
+                }
+                None => break,
+            };
             let t = now_ns();
             let skipped_now = p.skipped();
             let skipped_frames = skipped_now
@@ -306,8 +308,7 @@ pub fn run(
             }
             frame.flags = if gap { raw_flags::GAP_BEFORE } else { 0 };
             gap = false;
-            frame.counts[..n].copy_from_slice(&counts);
-            if counts.iter().any(|&c| c >= cfg.max_count as f32) {
+            if frame.counts[..n].iter().any(|&c| c >= cfg.max_count as f32) {
                 frame.flags |= raw_flags::RAIL;
             }
             frame.t_capture_ns = t;

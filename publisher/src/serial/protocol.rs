@@ -44,14 +44,32 @@ pub fn encode_binary(seq: u32, time_us: u32, counts: &[u16], out: &mut Vec<u8>) 
     out.extend_from_slice(&crc.to_le_bytes());
 }
 
-/// A decoded frame.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DeviceFrame {
+/// A decoded frame, borrowed from the parser's buffer (no allocation per frame).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Frame<'a> {
     /// Device sequence number (binary only).
     pub seq: Option<u32>,
     /// Device time in microseconds (binary always; ASCII when a leading time is present).
     pub time_us: Option<u64>,
+    pub counts: &'a [f32],
+}
+
+/// An owned copy of a [`Frame`] (tests and tools).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeviceFrame {
+    pub seq: Option<u32>,
+    pub time_us: Option<u64>,
     pub counts: Vec<f32>,
+}
+
+impl Frame<'_> {
+    pub fn to_owned_frame(&self) -> DeviceFrame {
+        DeviceFrame {
+            seq: self.seq,
+            time_us: self.time_us,
+            counts: self.counts.to_vec(),
+        }
+    }
 }
 
 /// Why bytes or lines were skipped.
@@ -79,6 +97,7 @@ pub struct BinaryParser {
     max_count: u16,
     buf: Vec<u8>,
     pos: usize,
+    counts: Vec<f32>,
     pub skipped: SkipCounts,
 }
 
@@ -90,6 +109,7 @@ impl BinaryParser {
             max_count,
             buf: Vec::with_capacity(4096),
             pos: 0,
+            counts: vec![0.0; nodes],
             skipped: SkipCounts::default(),
         }
     }
@@ -104,7 +124,7 @@ impl BinaryParser {
     }
 
     /// The next complete, valid frame in the buffered bytes.
-    pub fn next_frame(&mut self) -> Option<DeviceFrame> {
+    pub fn next_frame(&mut self) -> Option<Frame<'_>> {
         loop {
             let avail = &self.buf[self.pos..];
             // Find the sync bytes.
@@ -148,21 +168,20 @@ impl BinaryParser {
             }
             let seq = u32::from_le_bytes([frame[4], frame[5], frame[6], frame[7]]);
             let time = u32::from_le_bytes([frame[8], frame[9], frame[10], frame[11]]);
-            let mut counts = Vec::with_capacity(n);
             let mut ok = true;
-            for k in 0..n {
+            for (k, c) in self.counts.iter_mut().enumerate() {
                 let v = u16::from_le_bytes([frame[12 + 2 * k], frame[13 + 2 * k]]);
                 ok &= v <= self.max_count;
-                counts.push(v as f32);
+                *c = v as f32;
             }
             if !ok {
                 self.skipped.out_of_range += 1;
                 continue;
             }
-            return Some(DeviceFrame {
+            return Some(Frame {
                 seq: Some(seq),
                 time_us: Some(time as u64),
-                counts,
+                counts: &self.counts,
             });
         }
     }
@@ -173,13 +192,16 @@ impl BinaryParser {
     }
 }
 
-/// Streaming parser of the ASCII format.
+/// Streaming parser of the ASCII format: lines are parsed when asked for, into reused
+/// buffers.
 #[derive(Debug, Clone)]
 pub struct AsciiParser {
     nodes: usize,
     max_count: f64,
-    line: Vec<u8>,
-    pending: std::collections::VecDeque<DeviceFrame>,
+    buf: Vec<u8>,
+    pos: usize,
+    values: Vec<i64>,
+    counts: Vec<f32>,
     pub skipped: SkipCounts,
 }
 
@@ -191,68 +213,80 @@ impl AsciiParser {
         AsciiParser {
             nodes,
             max_count: max_count as f64,
-            line: Vec::with_capacity(256),
-            pending: Default::default(),
+            buf: Vec::with_capacity(4096),
+            pos: 0,
+            values: Vec::with_capacity(nodes + 2),
+            counts: vec![0.0; nodes],
             skipped: SkipCounts::default(),
         }
     }
 
     pub fn push(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            if b == b'\n' || b == b'\r' {
-                let line = std::mem::take(&mut self.line);
-                self.parse_line(&line);
-                self.line = line;
-                self.line.clear();
-            } else if self.line.len() < MAX_LINE {
-                self.line.push(b);
-            } else {
-                self.skipped.garbage_bytes += 1;
-            }
+        if self.pos > 0 && self.pos * 2 >= self.buf.len() {
+            self.buf.drain(..self.pos);
+            self.pos = 0;
+        }
+        self.buf.extend_from_slice(bytes);
+        // A line that never ends is not a frame: keep only its last MAX_LINE bytes.
+        let pending = self.buf.len() - self.pos;
+        if pending > MAX_LINE && !self.buf[self.pos..].contains(&b'\n') {
+            let drop = pending - MAX_LINE;
+            self.skipped.garbage_bytes += drop as u64;
+            self.pos += drop;
         }
     }
 
-    fn parse_line(&mut self, raw: &[u8]) {
-        let Ok(text) = std::str::from_utf8(raw) else {
-            self.skipped.bad_line += 1;
-            return;
-        };
-        let text = text.trim();
+    /// Parses one line into `values`; false if it is not a list of integers.
+    fn parse_line(values: &mut Vec<i64>, raw: &[u8]) -> Option<bool> {
+        let text = std::str::from_utf8(raw).ok()?.trim();
         if text.is_empty() || text.starts_with('#') {
-            return;
+            return Some(false);
         }
-        let mut values = Vec::with_capacity(self.nodes + 1);
+        values.clear();
         for field in text.split([',', ' ', '\t']).filter(|f| !f.is_empty()) {
-            match field.parse::<i64>() {
-                Ok(v) => values.push(v),
-                Err(_) => {
-                    self.skipped.bad_line += 1;
-                    return;
-                }
-            }
+            values.push(field.parse::<i64>().ok()?);
         }
-        let (time, counts) = if values.len() == self.nodes {
-            (None, &values[..])
-        } else if values.len() == self.nodes + 1 {
-            (Some(values[0]), &values[1..])
-        } else {
-            self.skipped.wrong_node_count += 1;
-            return;
-        };
-        if counts.iter().any(|&c| c < 0 || c as f64 > self.max_count) || time.is_some_and(|t| t < 0)
-        {
-            self.skipped.out_of_range += 1;
-            return;
-        }
-        self.pending.push_back(DeviceFrame {
-            seq: None,
-            time_us: time.map(|t| t as u64),
-            counts: counts.iter().map(|&c| c as f32).collect(),
-        });
+        Some(true)
     }
 
-    pub fn next_frame(&mut self) -> Option<DeviceFrame> {
-        self.pending.pop_front()
+    pub fn next_frame(&mut self) -> Option<Frame<'_>> {
+        loop {
+            let rest = &self.buf[self.pos..];
+            let end = rest.iter().position(|&b| b == b'\n' || b == b'\r')?;
+            let line_start = self.pos;
+            self.pos += end + 1;
+            match Self::parse_line(&mut self.values, &self.buf[line_start..line_start + end]) {
+                None => {
+                    self.skipped.bad_line += 1;
+                    continue;
+                }
+                Some(false) => continue,
+                Some(true) => {}
+            }
+            let (time, first) = if self.values.len() == self.nodes {
+                (None, 0)
+            } else if self.values.len() == self.nodes + 1 {
+                (Some(self.values[0]), 1)
+            } else {
+                self.skipped.wrong_node_count += 1;
+                continue;
+            };
+            let counts = &self.values[first..];
+            if counts.iter().any(|&c| c < 0 || c as f64 > self.max_count)
+                || time.is_some_and(|t| t < 0)
+            {
+                self.skipped.out_of_range += 1;
+                continue;
+            }
+            for (d, v) in self.counts.iter_mut().zip(counts) {
+                *d = *v as f32;
+            }
+            return Some(Frame {
+                seq: None,
+                time_us: time.map(|t| t as u64),
+                counts: &self.counts,
+            });
+        }
     }
 }
 
@@ -308,7 +342,7 @@ impl Parser {
             Parser::Binary(p) => p.push(bytes),
         }
     }
-    pub fn next_frame(&mut self) -> Option<DeviceFrame> {
+    pub fn next_frame(&mut self) -> Option<Frame<'_>> {
         match self {
             Parser::Ascii(p) => p.next_frame(),
             Parser::Binary(p) => p.next_frame(),
@@ -417,7 +451,7 @@ mod tests {
                     let end = (i + step).min(bytes.len());
                     p.push(&bytes[i..end]);
                     while let Some(f) = p.next_frame() {
-                        got.push(f);
+                        got.push(f.to_owned_frame());
                     }
                     i = end;
                 }
@@ -469,12 +503,9 @@ mod tests {
     fn ascii_lines_with_and_without_time() {
         let mut a = AsciiParser::new(4, 1023);
         a.push(b"# board v1\n\n1,2,3,4\r\n1000\t5 6 7 8\nx,1,2,3\n1,2,3\n1,2,3,4000\n");
-        let f1 = a.next_frame().expect("plain");
-        assert_eq!(
-            (f1.time_us, f1.counts.clone()),
-            (None, vec![1.0, 2.0, 3.0, 4.0])
-        );
-        let f2 = a.next_frame().expect("timed");
+        let f1 = a.next_frame().expect("plain").to_owned_frame();
+        assert_eq!((f1.time_us, f1.counts), (None, vec![1.0, 2.0, 3.0, 4.0]));
+        let f2 = a.next_frame().expect("timed").to_owned_frame();
         assert_eq!((f2.time_us, f2.counts[0]), (Some(1000), 5.0));
         assert!(a.next_frame().is_none());
         assert_eq!(a.skipped.bad_line, 1);
