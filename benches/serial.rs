@@ -69,7 +69,7 @@ fn bench(c: &mut Criterion) {
             let _ = p.next_frame();
             p.push(&one[45..]);
             if let Some(f) = p.next_frame() {
-                frame.counts[..16].copy_from_slice(&f.counts);
+                frame.counts[..16].copy_from_slice(f.counts);
                 frame.seq += 1;
                 black_box(publisher.send(&frame).expect("send"));
             }

@@ -2,6 +2,7 @@
 //! process role is also a subcommand (`taxel publisher ...`, `taxel calibrator ...`), so the
 //! root package alone can run everything.
 
+mod bench;
 mod children;
 mod demo;
 mod evaluate;
@@ -38,6 +39,11 @@ enum Cmd {
     Logger(taxel_consumers::logger::Args),
     /// Latency probe: sample-age percentiles and drops.
     Latency(taxel_consumers::latency::Args),
+    /// Latency of the pipeline against raw iceoryx2 and sockets, in one run.
+    Bench(bench::BenchArgs),
+    /// A socket peer of `taxel bench` (internal).
+    #[command(hide = true)]
+    BenchPeer(bench::peers::PeerArgs),
 }
 
 fn main() -> ExitCode {
@@ -50,5 +56,13 @@ fn main() -> ExitCode {
         Cmd::Control(a) => taxel_consumers::control::main(a),
         Cmd::Logger(a) => taxel_consumers::logger::main(a),
         Cmd::Latency(a) => taxel_consumers::latency::main(a),
+        Cmd::Bench(a) => bench::main(a),
+        Cmd::BenchPeer(a) => match bench::peers::run(&a) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("taxel bench-peer: error: {e:#}");
+                ExitCode::from(1)
+            }
+        },
     }
 }

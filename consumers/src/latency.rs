@@ -116,7 +116,10 @@ fn run(a: Args) -> Result<(), Failure> {
                 seq.received,
                 seq.dropped,
                 &h,
-                &[("seconds", (secs * 1000.0).round() / 1000.0)]
+                &[
+                    ("seconds", (secs * 1000.0).round() / 1000.0),
+                    ("cpu_s", taxel_runtime::process::cpu_seconds()),
+                ]
             )
         );
     } else {

@@ -260,14 +260,10 @@ pub fn run(
         let Some(p) = l.parser.as_mut() else {
             continue;
         };
-        loop {
-            let (seq, time_us) = match p.next_frame() {
-                Some(f) => {
-                    frame.counts[..n].copy_from_slice(f.counts);
-                    (f.seq, f.time_us)
-                }
-                None => break,
-            };
+        while let Some((seq, time_us)) = p.next_frame().map(|f| {
+            frame.counts[..n].copy_from_slice(f.counts);
+            (f.seq, f.time_us)
+        }) {
             let t = now_ns();
             let skipped_now = p.skipped();
             let skipped_frames = skipped_now

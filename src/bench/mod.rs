@@ -1,0 +1,454 @@
+//! `taxel bench`: latency of our pipeline against raw iceoryx2 and classic IPC, in one run, as
+//! separate processes with the same payload (a RawFrame, 4 160 bytes), at 1 kHz. Writes a
+//! Markdown table, one JSON object (`--json` on stdout) and a percentile plot.
+
+pub mod peers;
+
+use std::io::Read;
+use std::path::PathBuf;
+use std::process::{Child, Command, ExitCode, Stdio};
+use std::time::{Duration, Instant};
+
+use taxel_plot::{Chart, Mark, Series};
+
+#[derive(Debug, clap::Args)]
+pub struct BenchArgs {
+    /// 3 s per case instead of 10 s.
+    #[arg(long)]
+    pub quick: bool,
+    /// Print one JSON object on stdout (the table and plots are still written).
+    #[arg(long)]
+    pub json: bool,
+    /// Directory for bench.md, bench.json and the latency plots.
+    #[arg(long, default_value = "bench")]
+    pub out: PathBuf,
+    /// Stream rate (Hz).
+    #[arg(long, default_value_t = 1000.0)]
+    pub rate_hz: f64,
+    /// Seconds per case (overrides --quick).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+}
+
+#[derive(Debug, Clone, Default)]
+struct CaseResult {
+    case: String,
+    received: f64,
+    dropped: f64,
+    p50: f64,
+    p90: f64,
+    p99: f64,
+    p999: f64,
+    max: f64,
+    /// CPU of the waiting processes (% of one core each, summed).
+    cpu_pct: f64,
+}
+
+fn field(json: &str, key: &str) -> f64 {
+    let k = format!("\"{key}\": ");
+    json.find(&k)
+        .and_then(|at| {
+            json[at + k.len()..]
+                .split([',', '}'])
+                .next()
+                .and_then(|v| v.trim().parse().ok())
+        })
+        .unwrap_or(f64::NAN)
+}
+
+fn taxel(args: &[String], prefix: &str) -> anyhow::Result<Child> {
+    Ok(Command::new(std::env::current_exe()?)
+        .args(args)
+        .env("TAXEL_PREFIX", prefix)
+        .env("RUST_LOG", "warn")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()?)
+}
+
+fn s(v: &str) -> String {
+    v.to_string()
+}
+
+/// CPU seconds (user + system) of a process so far, from /proc.
+fn cpu_of(pid: u32) -> f64 {
+    let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+        return 0.0;
+    };
+    let after = stat.rfind(')').map_or("", |i| &stat[i + 2..]);
+    let f: Vec<&str> = after.split_whitespace().collect();
+    // Fields 14 and 15 of stat (utime, stime) are 12 and 13 after the command name.
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    // SAFETY: sysconf has no preconditions.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) }.max(1) as f64;
+    (ticks(11) + ticks(12)) / hz
+}
+
+fn wait_nodes(prefix: &str, n: usize) {
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_secs(5) {
+        if taxel_runtime::ipc::count_nodes(prefix).map_or(0, |c| c.0) >= n {
+            std::thread::sleep(Duration::from_millis(200));
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn output(mut c: Child) -> String {
+    let mut out = String::new();
+    if let Some(mut so) = c.stdout.take() {
+        let _ = so.read_to_string(&mut out);
+    }
+    let _ = c.wait();
+    out
+}
+
+fn from_json(case: &str, json: &str, cpu_pct: f64) -> CaseResult {
+    CaseResult {
+        case: case.to_string(),
+        received: field(json, "received"),
+        dropped: field(json, "dropped"),
+        p50: field(json, "p50_us"),
+        p90: field(json, "p90_us"),
+        p99: field(json, "p99_us"),
+        p999: field(json, "p999_us"),
+        max: field(json, "max_us"),
+        cpu_pct,
+    }
+}
+
+/// Raw iceoryx2, one hop: the publisher's RawFrames into a latency probe.
+fn iox2(case: &str, wake: &str, secs: f64, rate: f64, n: usize) -> anyhow::Result<CaseResult> {
+    let prefix = format!("txbench{}_{n}_", std::process::id());
+    let probe = taxel(
+        &[
+            s("latency"),
+            s("--sensor"),
+            s("b"),
+            s("--stream"),
+            s("raw"),
+            s("--wake"),
+            s(wake),
+            s("--seconds"),
+            secs.to_string(),
+            s("--json"),
+        ],
+        &prefix,
+    )?;
+    wait_nodes(&prefix, 1);
+    let pid = probe.id();
+    let c0 = cpu_of(pid);
+    let mut publisher = taxel(
+        &[
+            s("publisher"),
+            s("--sensor"),
+            s("b"),
+            s("--seconds"),
+            (secs + 1.0).to_string(),
+            s("sim"),
+            s("--rate-hz"),
+            rate.to_string(),
+        ],
+        &prefix,
+    )?;
+    let out = output(probe);
+    let json = out
+        .lines()
+        .find(|l| l.starts_with('{'))
+        .unwrap_or("{}")
+        .to_string();
+    let cpu = (field(&json, "cpu_s") - c0).max(0.0) / secs * 100.0;
+    let _ = publisher.wait();
+    let _ = taxel_runtime::ipc::release_prefix(&prefix);
+    Ok(from_json(case, &json, cpu))
+}
+
+/// Unix socket or TCP loopback, one hop.
+fn socket(
+    case: &str,
+    transport: &str,
+    role: &str,
+    secs: f64,
+    rate: f64,
+    n: usize,
+) -> anyhow::Result<CaseResult> {
+    let addr = if transport == "uds" {
+        std::env::temp_dir()
+            .join(format!("taxel-bench-{}-{n}.sock", std::process::id()))
+            .display()
+            .to_string()
+    } else {
+        (41000 + (std::process::id() % 1000) as u16 * 10 + n as u16).to_string()
+    };
+    let peer = |role: &str| {
+        vec![
+            s("bench-peer"),
+            s("--transport"),
+            s(transport),
+            s("--role"),
+            s(role),
+            s("--addr"),
+            addr.clone(),
+            s("--rate-hz"),
+            rate.to_string(),
+            s("--seconds"),
+            secs.to_string(),
+        ]
+    };
+    let mut recv = taxel(&peer(role), "unused_")?;
+    // Wait for "ready".
+    let mut ready = [0u8; 6];
+    if let Some(so) = recv.stdout.as_mut() {
+        let _ = so.read_exact(&mut ready);
+    }
+    let mut send = taxel(&peer("send"), "unused_")?;
+    let out = output(recv);
+    let _ = send.kill();
+    let _ = send.wait();
+    let json = out
+        .lines()
+        .find(|l| l.starts_with('{'))
+        .unwrap_or("{}")
+        .to_string();
+    let cpu = field(&json, "cpu_s") / secs * 100.0;
+    if transport == "uds" {
+        let _ = std::fs::remove_file(&addr);
+    }
+    Ok(from_json(case, &json, cpu))
+}
+
+/// Our force path: publisher -> calibrator -> consumer, both waiting in `wake` mode.
+fn force_path(
+    case: &str,
+    wake: &str,
+    secs: f64,
+    rate: f64,
+    n: usize,
+    cal: &str,
+) -> anyhow::Result<CaseResult> {
+    let prefix = format!("txbench{}_{n}_", std::process::id());
+    let mut calibrator = taxel(
+        &[
+            s("calibrator"),
+            s("run"),
+            s("--sensor"),
+            s("b"),
+            s("--calibration"),
+            s(cal),
+            s("--wake"),
+            s(wake),
+        ],
+        &prefix,
+    )?;
+    wait_nodes(&prefix, 1);
+    let probe = taxel(
+        &[
+            s("latency"),
+            s("--sensor"),
+            s("b"),
+            s("--wake"),
+            s(wake),
+            s("--seconds"),
+            secs.to_string(),
+            s("--json"),
+        ],
+        &prefix,
+    )?;
+    wait_nodes(&prefix, 2);
+    let cal_pid = calibrator.id();
+    let c0 = cpu_of(cal_pid);
+    let mut publisher = taxel(
+        &[
+            s("publisher"),
+            s("--sensor"),
+            s("b"),
+            s("--seconds"),
+            (secs + 1.0).to_string(),
+            s("sim"),
+            s("--rate-hz"),
+            rate.to_string(),
+        ],
+        &prefix,
+    )?;
+    let out = output(probe);
+    let cal_cpu = (cpu_of(cal_pid) - c0).max(0.0);
+    let _ = publisher.wait();
+    // SAFETY: kill(2) on our own child.
+    unsafe {
+        libc::kill(cal_pid as i32, libc::SIGINT);
+    }
+    let _ = calibrator.wait();
+    let _ = taxel_runtime::ipc::release_prefix(&prefix);
+    let json = out
+        .lines()
+        .find(|l| l.starts_with('{'))
+        .unwrap_or("{}")
+        .to_string();
+    let cpu = (cal_cpu + field(&json, "cpu_s")) / secs * 100.0;
+    Ok(from_json(case, &json, cpu))
+}
+
+fn machine() -> String {
+    let model = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|c| {
+            c.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|m| m.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    let kernel = std::fs::read_to_string("/proc/sys/kernel/osrelease")
+        .map(|k| k.trim().to_string())
+        .unwrap_or_default();
+    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    format!("{model}, {cores} cores, Linux {kernel}")
+}
+
+pub fn main(a: BenchArgs) -> ExitCode {
+    match run(a) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!(
+                "taxel bench: error: {}",
+                format!("{e:#}").replace('\n', " ")
+            );
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn run(a: BenchArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        a.rate_hz.is_finite() && a.rate_hz > 0.0 && a.rate_hz <= 100_000.0,
+        "--rate-hz must be in (0, 100000]"
+    );
+    let secs = a.seconds.unwrap_or(if a.quick { 3.0 } else { 10.0 });
+    anyhow::ensure!(
+        secs.is_finite() && (0.2..=3600.0).contains(&secs),
+        "--seconds must be 0.2..=3600"
+    );
+    std::fs::create_dir_all(&a.out)?;
+    let cal = a.out.join("bench-calibration.toml");
+    std::fs::write(&cal, include_str!("../../calibrations/sim-default.toml"))?;
+    let cal_s = cal.display().to_string();
+    let rate = a.rate_hz;
+    let mut cases = Vec::new();
+    type Case = Box<dyn Fn(usize) -> anyhow::Result<CaseResult>>;
+    let steps: Vec<(&str, Case)> = vec![
+        (
+            "iox2_busy_1hop",
+            Box::new(move |n| iox2("iox2_busy_1hop", "busy", secs, rate, n)),
+        ),
+        (
+            "iox2_event_1hop",
+            Box::new(move |n| iox2("iox2_event_1hop", "event", secs, rate, n)),
+        ),
+        (
+            "uds_block_1hop",
+            Box::new(move |n| socket("uds_block_1hop", "uds", "recv-block", secs, rate, n)),
+        ),
+        (
+            "uds_spin_1hop",
+            Box::new(move |n| socket("uds_spin_1hop", "uds", "recv-spin", secs, rate, n)),
+        ),
+        (
+            "tcp_block_1hop",
+            Box::new(move |n| socket("tcp_block_1hop", "tcp", "recv-block", secs, rate, n)),
+        ),
+        (
+            "tcp_spin_1hop",
+            Box::new(move |n| socket("tcp_spin_1hop", "tcp", "recv-spin", secs, rate, n)),
+        ),
+        (
+            "force_path_event",
+            Box::new({
+                let c = cal_s.clone();
+                move |n| force_path("force_path_event", "event", secs, rate, n, &c)
+            }),
+        ),
+        (
+            "force_path_busy",
+            Box::new({
+                let c = cal_s.clone();
+                move |n| force_path("force_path_busy", "busy", secs, rate, n, &c)
+            }),
+        ),
+        (
+            "force_path_adaptive",
+            Box::new({
+                let c = cal_s.clone();
+                move |n| force_path("force_path_adaptive", "adaptive", secs, rate, n, &c)
+            }),
+        ),
+    ];
+    for (i, (name, f)) in steps.iter().enumerate() {
+        eprintln!("taxel bench: {name} ({secs} s at {rate} Hz) ...");
+        cases.push(f(i)?);
+    }
+    let m = machine();
+    let mut md = format!(
+        "# taxel bench\n\n{m}; {rate} Hz, RawFrame payload ({} bytes), {secs} s per case, separate processes. Age = receive time - capture time (CLOCK_MONOTONIC); force paths are two hops.\n\n| case | received | dropped | p50 (us) | p90 (us) | p99 (us) | p99.9 (us) | max (us) | CPU of waiting processes (% core) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        peers::MSG
+    );
+    for c in &cases {
+        md.push_str(&format!(
+            "| {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+            c.case, c.received, c.dropped, c.p50, c.p90, c.p99, c.p999, c.max, c.cpu_pct
+        ));
+    }
+    let cases_json: Vec<String> = cases
+        .iter()
+        .map(|c| {
+            let num = |v: f64| if v.is_finite() { format!("{v:.1}") } else { "null".into() };
+            format!(
+                "{{\"case\": \"{}\", \"received\": {}, \"p50_us\": {}, \"p90_us\": {}, \"p99_us\": {}, \"p999_us\": {}, \"max_us\": {}, \"dropped\": {}, \"cpu_pct\": {}}}",
+                c.case,
+                num(c.received),
+                num(c.p50),
+                num(c.p90),
+                num(c.p99),
+                num(c.p999),
+                num(c.max),
+                num(c.dropped),
+                num(c.cpu_pct)
+            )
+        })
+        .collect();
+    let json = format!(
+        "{{\"machine\": \"{}\", \"rate_hz\": {rate}, \"seconds_per_case\": {secs}, \"cases\": [{}]}}",
+        m.replace('"', "'"),
+        cases_json.join(", ")
+    );
+    std::fs::write(a.out.join("bench.md"), &md)?;
+    std::fs::write(a.out.join("bench.json"), &json)?;
+    let series: Vec<Series> = cases
+        .iter()
+        .map(|c| Series {
+            name: c.case.clone(),
+            points: vec![(50.0, c.p50), (90.0, c.p90), (99.0, c.p99), (99.9, c.p999)],
+            mark: Mark::LinePoints,
+        })
+        .collect();
+    for ext in ["svg", "png"] {
+        taxel_plot::write(
+            &a.out.join(format!("latency.{ext}")),
+            &Chart {
+                title: format!("one-way latency percentiles at {rate} Hz"),
+                x_label: "percentile".into(),
+                y_label: "latency (us)".into(),
+                series: series.clone(),
+                x_range: Some((45.0, 100.5)),
+                y_range: None,
+            },
+        )?;
+    }
+    if a.json {
+        println!("{json}");
+    } else {
+        println!("{md}\nwritten to {}", a.out.display());
+    }
+    Ok(())
+}
