@@ -69,8 +69,16 @@ impl Adaptive {
         }
     }
 
-    /// A sample captured at `capture` was received at `recv`; `polled`: we were polling.
+    /// A sample captured at `capture` was received at `recv`. `polled`: it arrived while we
+    /// were polling, so `recv - capture` is the true delay. Otherwise the delay estimate is
+    /// nudged: down when the sample was already waiting (we woke late), up when it came after
+    /// the polling window (`late`), so the window converges on the real arrival even when the
+    /// producer's own delay varies (a second hop).
     fn arrived(&mut self, capture: u64, recv: u64, polled: bool) {
+        self.arrived_with(capture, recv, polled, false)
+    }
+
+    fn arrived_with(&mut self, capture: u64, recv: u64, polled: bool, late: bool) {
         if let Some(last) = self.last_capture {
             let dt = capture.saturating_sub(last) as f64;
             if self.period_ns == 0.0 {
@@ -81,9 +89,13 @@ impl Adaptive {
                 self.jitter_ns += 0.05 * (err.abs() - self.jitter_ns);
             }
         }
+        let hop = (recv.saturating_sub(capture) as f64).min(1e6);
         if polled {
-            let hop = recv.saturating_sub(capture) as f64;
-            self.hop_ns += 0.05 * (hop.min(1e6) - self.hop_ns);
+            self.hop_ns += 0.05 * (hop - self.hop_ns);
+        } else if late {
+            self.hop_ns += 0.2 * (hop - self.hop_ns).max(0.0);
+        } else {
+            self.hop_ns = (self.hop_ns - 2_000.0).max(0.0);
         }
         self.last_capture = Some(capture);
     }
@@ -257,7 +269,8 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
                 })? > 0
                 {
                     if let Some(c) = newest.take() {
-                        a.arrived(c, t, false);
+                        let planned = a.plan().is_some();
+                        a.arrived_with(c, t, false, planned);
                     }
                 }
             }
