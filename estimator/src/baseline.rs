@@ -75,7 +75,7 @@ pub struct Baseline {
     pub remount: bool,
 }
 
-/// Streaming detector; no allocation per frame.
+/// Streaming detector; no allocation per frame (buffers are sized once per geometry).
 #[derive(Debug, Clone)]
 pub struct BaselineDetector {
     cfg: DetectorConfig,
@@ -86,10 +86,15 @@ pub struct BaselineDetector {
     first_seq: u64,
     last_seq: Option<u64>,
     t_start_ns: u64,
-    current: Option<Vec<f64>>,
+    /// The baseline in use (valid when `has_current`).
+    current: Vec<f64>,
+    has_current: bool,
     last_emit_ns: Option<u64>,
-    /// A steady level away from the baseline: its mean and when it started.
-    candidate: Option<(Vec<f64>, u64)>,
+    /// A steady level away from the baseline and since when (valid when `candidate_since`).
+    candidate: Vec<f64>,
+    candidate_since: Option<u64>,
+    /// The window just completed (returned by reference).
+    out: Baseline,
 }
 
 impl BaselineDetector {
@@ -103,15 +108,26 @@ impl BaselineDetector {
             first_seq: 0,
             last_seq: None,
             t_start_ns: 0,
-            current: None,
+            current: Vec::new(),
+            has_current: false,
             last_emit_ns: None,
-            candidate: None,
+            candidate: Vec::new(),
+            candidate_since: None,
+            out: Baseline {
+                mean: Vec::new(),
+                first_seq: 0,
+                last_seq: 0,
+                t_start_ns: 0,
+                t_end_ns: 0,
+                frames: 0,
+                remount: false,
+            },
         }
     }
 
     /// The baseline in use, if any.
     pub fn current(&self) -> Option<&[f64]> {
-        self.current.as_deref()
+        self.has_current.then_some(&self.current[..])
     }
 
     fn restart(&mut self) {
@@ -122,13 +138,17 @@ impl BaselineDetector {
 
     /// Feeds one frame; returns a baseline when a window completes as no-load (and the minimum
     /// interval has passed).
-    pub fn push(&mut self, seq: u64, t_ns: u64, nodes: &[f32]) -> Option<Baseline> {
+    pub fn push(&mut self, seq: u64, t_ns: u64, nodes: &[f32]) -> Option<&Baseline> {
         if nodes.len() != self.n {
             // New geometry: start from scratch.
             self.n = nodes.len();
             self.sum = vec![0.0; self.n];
             self.sumsq = vec![0.0; self.n];
-            self.current = None;
+            self.current = vec![0.0; self.n];
+            self.candidate = vec![0.0; self.n];
+            self.out.mean = vec![0.0; self.n];
+            self.has_current = false;
+            self.candidate_since = None;
             self.count = 0;
         }
         if self.last_seq.is_some_and(|l| seq != l + 1) {
@@ -151,65 +171,65 @@ impl BaselineDetector {
         let m = self.count as f64;
         let mut steady = true;
         let mut shift: f64 = 0.0;
-        let mut mean = vec![0.0; self.n];
         for k in 0..self.n {
             let mu = self.sum[k] / m;
             let var = (self.sumsq[k] / m - mu * mu).max(0.0);
             if var.sqrt() > self.cfg.max_node_sd {
                 steady = false;
             }
-            if let Some(cur) = &self.current {
-                shift = shift.max((mu - cur[k]).abs());
+            if self.has_current {
+                shift = shift.max((mu - self.current[k]).abs());
             }
-            mean[k] = mu;
+            self.out.mean[k] = mu;
         }
         let frames = self.count;
         self.restart();
         if !steady {
-            self.candidate = None;
+            self.candidate_since = None;
             return None;
         }
-        if shift > self.cfg.contact_threshold {
+        let remount = shift > self.cfg.contact_threshold;
+        if remount {
             // Steady but away from the baseline: a held press, or a remount.
             if shift > self.cfg.max_rebaseline_shift {
-                self.candidate = None;
+                self.candidate_since = None;
                 return None;
             }
-            let same = self.candidate.as_ref().is_some_and(|(c, _)| {
-                c.iter()
-                    .zip(&mean)
-                    .all(|(a, b)| (a - b).abs() <= self.cfg.contact_threshold)
-            });
+            let same = self.candidate_since.is_some()
+                && self
+                    .candidate
+                    .iter()
+                    .zip(&self.out.mean)
+                    .all(|(a, b)| (a - b).abs() <= self.cfg.contact_threshold);
             if !same {
-                self.candidate = Some((mean, self.t_start_ns));
+                self.candidate.copy_from_slice(&self.out.mean);
+                self.candidate_since = Some(self.t_start_ns);
                 return None;
             }
-            let since = self.candidate.as_ref().map_or(t_ns, |c| c.1);
+            let since = self.candidate_since.unwrap_or(t_ns);
             if (t_ns.saturating_sub(since) as f64) < self.cfg.rebaseline_s * 1e9 {
                 return None;
             }
             // Accepted as a new baseline: publish now regardless of the interval.
             self.last_emit_ns = None;
         }
-        let remount = shift > self.cfg.contact_threshold;
-        self.candidate = None;
+        self.candidate_since = None;
         let due = self
             .last_emit_ns
             .is_none_or(|t| t_ns.saturating_sub(t) as f64 >= self.cfg.min_interval_s * 1e9);
-        self.current = Some(mean.clone());
+        self.current.copy_from_slice(&self.out.mean);
+        self.has_current = true;
         if !due {
             return None;
         }
         self.last_emit_ns = Some(t_ns);
-        Some(Baseline {
-            mean,
-            first_seq: self.first_seq,
-            last_seq: seq,
-            t_start_ns: self.t_start_ns,
-            t_end_ns: t_ns,
-            frames,
-            remount,
-        })
+        self.out.first_seq = self.first_seq;
+        self.out.last_seq = seq;
+        self.out.t_start_ns = self.t_start_ns;
+        self.out.t_end_ns = t_ns;
+        self.out.frames = frames;
+        self.out.remount = remount;
+        Some(&self.out)
     }
 }
 
@@ -234,7 +254,7 @@ mod tests {
             for i in 0..n {
                 let wobble = if i % 2 == 0 { 0.5 } else { -0.5 };
                 if let Some(b) = d.push(seq, seq * 1_000_000, &[level + wobble, 100.0]) {
-                    out.push(b);
+                    out.push(b.clone());
                 }
                 seq += 1;
             }
@@ -284,7 +304,7 @@ mod tests {
             let mut got = Vec::new();
             for _ in 0..frames {
                 if let Some(b) = d.push(seq, seq * 10 * ms, &levels) {
-                    got.push(b);
+                    got.push(b.clone());
                 }
                 seq += 1;
             }

@@ -1,0 +1,187 @@
+//! Nothing on the per-sample hot path allocates: a counting global allocator watches the
+//! calibrator's per-frame computation, both serial parsers, the estimator (including the frames
+//! that complete a no-load window and its curvature prediction), the logger's record encoding
+//! and the consumers' statistics, after a warm-up. (iceoryx2's own send and receive are not
+//! counted here.)
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+struct Counting;
+static ALLOCS: AtomicU64 = AtomicU64::new(0);
+
+// SAFETY: forwards to the system allocator; only counts.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(l) }
+    }
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(p, l) }
+    }
+    unsafe fn realloc(&self, p: *mut u8, l: Layout, n: usize) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(p, l, n) }
+    }
+}
+
+#[global_allocator]
+static A: Counting = Counting;
+
+fn allocations(mut f: impl FnMut()) -> u64 {
+    let before = ALLOCS.load(Ordering::Relaxed);
+    f();
+    ALLOCS.load(Ordering::Relaxed) - before
+}
+
+#[test]
+fn hot_paths_do_not_allocate() {
+    use taxel_calibrator::calibration::Calibration;
+    use taxel_calibrator::reload::Loaded;
+    use taxel_calibrator::run::Calibrator;
+    use taxel_msgs::{CurvatureEstimate, ForceSample, RawFrame};
+
+    // Calibrator, per frame.
+    let cal = Calibration::from_toml_str("c", include_str!("../calibrations/sim-default.toml"))
+        .expect("cal");
+    let mut c = Calibrator::new(
+        Arc::new(Loaded {
+            calibration: cal,
+            generation: 1,
+        }),
+        60.0,
+    );
+    let mut est = CurvatureEstimate::ZERO;
+    est.rows = 4;
+    est.cols = 4;
+    c.set_curvature(&est);
+    let mut frame = RawFrame::ZERO;
+    frame.rows = 4;
+    frame.cols = 4;
+    let mut out = ForceSample::ZERO;
+    c.apply(&frame, 0, &mut out);
+    let n = allocations(|| {
+        for i in 0..10_000u64 {
+            frame.seq = i;
+            frame.counts[5] = (i % 900) as f32;
+            c.apply(&frame, i, &mut out);
+        }
+    });
+    assert_eq!(n, 0, "calibrator apply allocated {n} times");
+
+    // Serial parsers (buffers grown during warm-up).
+    use taxel_publisher::serial::protocol::{encode_binary, AsciiParser, BinaryParser};
+    let mut bin = Vec::new();
+    let mut ascii = Vec::new();
+    for i in 0..200u32 {
+        encode_binary(i, i, &[i as u16 % 1000; 16], &mut bin);
+        ascii.extend_from_slice(
+            format!("{}\n", vec![(i % 1000).to_string(); 16].join(",")).as_bytes(),
+        );
+    }
+    let mut bp = BinaryParser::new(16, 1023);
+    let mut ap = AsciiParser::new(16, 1023);
+    for _ in 0..3 {
+        bp.push(&bin);
+        while bp.next_frame().is_some() {}
+        ap.push(&ascii);
+        while ap.next_frame().is_some() {}
+    }
+    let n = allocations(|| {
+        for _ in 0..20 {
+            for chunk in bin.chunks(256) {
+                bp.push(chunk);
+                while bp.next_frame().is_some() {}
+            }
+            for chunk in ascii.chunks(256) {
+                ap.push(chunk);
+                while ap.next_frame().is_some() {}
+            }
+        }
+    });
+    assert_eq!(n, 0, "serial parsers allocated {n} times");
+
+    // Estimator: steady frames complete a no-load window every 100 frames and get a curvature.
+    let model = taxel_estimator::model::CurvatureModel::load(std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/models/curvature-default.taxcrv"
+    )))
+    .expect("model");
+    let cfg = taxel_estimator::baseline::DetectorConfig {
+        min_interval_s: 0.0,
+        ..Default::default()
+    };
+    let mut e = taxel_estimator::estimate::Estimator::new(cfg, Some(&model), 0.0);
+    for k in 0..16 {
+        frame.counts[k] = 110.0 + k as f32;
+    }
+    for i in 0..300u64 {
+        frame.seq = i;
+        frame.t_capture_ns = i * 1_000_000;
+        let _ = e.push(&frame).expect("push");
+    }
+    let mut estimates = 0;
+    let n = allocations(|| {
+        for i in 300..1300u64 {
+            frame.seq = i;
+            frame.t_capture_ns = i * 1_000_000;
+            if e.push(&frame).expect("push").is_some() {
+                estimates += 1;
+            }
+        }
+    });
+    assert!(estimates >= 9, "{estimates} estimates");
+    assert_eq!(
+        n, 0,
+        "estimator allocated {n} times over {estimates} windows"
+    );
+
+    // The logger's record encoding: a reused record, appended to a record file.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut w =
+        taxel_formats::RecordFileWriter::create(&dir.path().join("a.taxrec")).expect("file");
+    let mut rec = taxel_formats::Record::Raw {
+        sensor: "s0".into(),
+        seq: 0,
+        t_capture_ns: 0,
+        rows: 4,
+        cols: 4,
+        flags: 0,
+        source: 1,
+        full_scale: 1023.0,
+        counts: Vec::with_capacity(16),
+    };
+    let fill = |rec: &mut taxel_formats::Record, i: u64| {
+        if let taxel_formats::Record::Raw { seq, counts, .. } = rec {
+            *seq = i;
+            counts.clear();
+            counts.extend_from_slice(&frame.counts[..16]);
+        }
+    };
+    for i in 0..100 {
+        fill(&mut rec, i);
+        w.append(&rec).expect("append");
+    }
+    let n = allocations(|| {
+        for i in 100..5100 {
+            fill(&mut rec, i);
+            w.append(&rec).expect("append");
+        }
+    });
+    assert_eq!(n, 0, "record encoding allocated {n} times");
+
+    // Consumers' statistics.
+    let mut h = taxel_consumers::age::AgeHistogram::new();
+    let mut s = taxel_runtime::stats::SeqTracker::default();
+    let n = allocations(|| {
+        for i in 0..10_000u64 {
+            h.record_ns(1000 + i * 7);
+            s.observe(i);
+        }
+    });
+    assert_eq!(n, 0, "statistics allocated {n} times");
+}
