@@ -204,19 +204,22 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
         }
         WakeMode::Adaptive => {
             let mut a = Adaptive::new();
-            let mut newest = None;
+            // Hands every waiting sample to `on_sample`; returns the newest one's capture time
+            // and when it was received.
+            let mut poll = || -> Result<Option<(u64, u64)>, IpcError> {
+                let t = now_ns();
+                let mut newest = None;
+                sub.poll_each(|v| {
+                    newest = Some(capture_ns(v));
+                    on_sample(v, t)
+                })?;
+                Ok(newest.map(|c| (c, t)))
+            };
             while !done(shutdown) {
                 tick(&mut last_tick);
                 // Anything already there?
-                let t = now_ns();
-                if sub.poll_each(|v| {
-                    newest = Some(capture_ns(v));
-                    on_sample(v, t)
-                })? > 0
-                {
-                    if let Some(c) = newest.take() {
-                        a.arrived(c, t, false);
-                    }
+                if let Some((c, t)) = poll()? {
+                    a.arrived(c, t, false);
                     sub.clear_wakeups()?;
                     continue;
                 }
@@ -230,22 +233,15 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
                     let mut got = false;
                     let mut empty = 0u32;
                     loop {
-                        let t = now_ns();
-                        if sub.poll_each(|v| {
-                            newest = Some(capture_ns(v));
-                            on_sample(v, t)
-                        })? > 0
-                        {
+                        if let Some((c, t)) = poll()? {
                             // Only a sample that arrived while we polled measures the
                             // transport; one already waiting measures our lateness.
-                            if let Some(c) = newest.take() {
-                                a.arrived(c, t, empty > 0);
-                            }
+                            a.arrived(c, t, empty > 0);
                             a.stats.caught += 1;
                             got = true;
                             break;
                         }
-                        if t >= spin_until || done(shutdown) {
+                        if now_ns() >= spin_until || done(shutdown) {
                             break;
                         }
                         empty += 1;
@@ -262,16 +258,9 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
                 }
                 // Late or unknown: sleep on the event.
                 sub.wait_wakeup(ipc::TICK)?;
-                let t = now_ns();
-                if sub.poll_each(|v| {
-                    newest = Some(capture_ns(v));
-                    on_sample(v, t)
-                })? > 0
-                {
-                    if let Some(c) = newest.take() {
-                        let planned = a.plan().is_some();
-                        a.arrived_with(c, t, false, planned);
-                    }
+                if let Some((c, t)) = poll()? {
+                    let planned = a.plan().is_some();
+                    a.arrived_with(c, t, false, planned);
                 }
             }
             a.stats.learned_us = [
