@@ -119,28 +119,28 @@ fn from_json(case: &str, json: &str, cpu_pct: f64) -> CaseResult {
     }
 }
 
-/// Raw iceoryx2, one hop: the publisher's RawFrames into a latency probe.
-fn iox2(case: &str, wake: &str, secs: f64, rate: f64, n: usize) -> anyhow::Result<CaseResult> {
-    let prefix = format!("txbench{}_{n}_", std::process::id());
-    let probe = taxel(
+/// A latency probe on sensor `b`'s `stream`, printing its JSON after `secs`.
+fn probe(prefix: &str, stream: &str, wake: &str, secs: f64) -> anyhow::Result<Child> {
+    taxel(
         &[
             s("latency"),
             s("--sensor"),
             s("b"),
             s("--stream"),
-            s("raw"),
+            s(stream),
             s("--wake"),
             s(wake),
             s("--seconds"),
             secs.to_string(),
             s("--json"),
         ],
-        &prefix,
-    )?;
-    wait_nodes(&prefix, 1);
-    let pid = probe.id();
-    let c0 = cpu_of(pid);
-    let mut publisher = taxel(
+        prefix,
+    )
+}
+
+/// The simulated sensor `b` at `rate` Hz for a second longer than the measurement.
+fn publisher(prefix: &str, secs: f64, rate: f64) -> anyhow::Result<Child> {
+    taxel(
         &[
             s("publisher"),
             s("--sensor"),
@@ -151,14 +151,28 @@ fn iox2(case: &str, wake: &str, secs: f64, rate: f64, n: usize) -> anyhow::Resul
             s("--rate-hz"),
             rate.to_string(),
         ],
-        &prefix,
-    )?;
-    let out = output(probe);
-    let json = out
-        .lines()
+        prefix,
+    )
+}
+
+/// The JSON line of a probe's output.
+fn json_line(out: &str) -> String {
+    out.lines()
         .find(|l| l.starts_with('{'))
         .unwrap_or("{}")
-        .to_string();
+        .to_string()
+}
+
+/// Raw iceoryx2, one hop: the publisher's RawFrames into a latency probe.
+fn iox2(case: &str, wake: &str, secs: f64, rate: f64, n: usize) -> anyhow::Result<CaseResult> {
+    let prefix = format!("txbench{}_{n}_", std::process::id());
+    let probe = probe(&prefix, "raw", wake, secs)?;
+    wait_nodes(&prefix, 1);
+    let pid = probe.id();
+    let c0 = cpu_of(pid);
+    let mut publisher = publisher(&prefix, secs, rate)?;
+    let out = output(probe);
+    let json = json_line(&out);
     let cpu = (field(&json, "cpu_s") - c0).max(0.0) / secs * 100.0;
     let _ = publisher.wait();
     let _ = taxel_runtime::ipc::release_prefix(&prefix);
@@ -207,11 +221,7 @@ fn socket(
     let out = output(recv);
     let _ = send.kill();
     let _ = send.wait();
-    let json = out
-        .lines()
-        .find(|l| l.starts_with('{'))
-        .unwrap_or("{}")
-        .to_string();
+    let json = json_line(&out);
     let cpu = field(&json, "cpu_s") / secs * 100.0;
     if transport == "uds" {
         let _ = std::fs::remove_file(&addr);
@@ -243,35 +253,11 @@ fn force_path(
         &prefix,
     )?;
     wait_nodes(&prefix, 1);
-    let probe = taxel(
-        &[
-            s("latency"),
-            s("--sensor"),
-            s("b"),
-            s("--wake"),
-            s(wake),
-            s("--seconds"),
-            secs.to_string(),
-            s("--json"),
-        ],
-        &prefix,
-    )?;
+    let probe = probe(&prefix, "force", wake, secs)?;
     wait_nodes(&prefix, 2);
     let cal_pid = calibrator.id();
     let c0 = cpu_of(cal_pid);
-    let mut publisher = taxel(
-        &[
-            s("publisher"),
-            s("--sensor"),
-            s("b"),
-            s("--seconds"),
-            (secs + 1.0).to_string(),
-            s("sim"),
-            s("--rate-hz"),
-            rate.to_string(),
-        ],
-        &prefix,
-    )?;
+    let mut publisher = publisher(&prefix, secs, rate)?;
     let out = output(probe);
     let cal_cpu = (cpu_of(cal_pid) - c0).max(0.0);
     let _ = publisher.wait();
@@ -281,11 +267,7 @@ fn force_path(
     }
     let _ = calibrator.wait();
     let _ = taxel_runtime::ipc::release_prefix(&prefix);
-    let json = out
-        .lines()
-        .find(|l| l.starts_with('{'))
-        .unwrap_or("{}")
-        .to_string();
+    let json = json_line(&out);
     let cpu = (cal_cpu + field(&json, "cpu_s")) / secs * 100.0;
     Ok(from_json(case, &json, cpu))
 }
