@@ -21,9 +21,10 @@ use crate::age::{json_report, AgeHistogram};
 pub struct Args {
     #[command(flatten)]
     pub common: CommonArgs,
-    /// Sensor id.
-    #[arg(long, default_value = "s0")]
-    pub sensor: String,
+    /// Sensor id; several (comma separated) are measured together, event-driven, and the
+    /// report sums their samples and drops.
+    #[arg(long, value_delimiter = ',', num_args = 1.., default_value = "s0")]
+    pub sensor: Vec<String>,
     /// Measure for this many seconds (default: until Ctrl-C).
     #[arg(long)]
     pub seconds: Option<f64>,
@@ -73,8 +74,64 @@ fn measure<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     Ok((seq, h, start.elapsed().as_secs_f64()))
 }
 
+/// Several sensors' streams in one WaitSet; drops are counted per sensor.
+fn measure_many<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
+    subs: &[StreamSubscriber<T>],
+    stamp: impl Fn(&T) -> (u64, u64),
+    seconds: Option<f64>,
+    shutdown: &Shutdown,
+) -> anyhow::Result<(SeqTracker, AgeHistogram, f64)> {
+    let ws = taxel_runtime::ipc::waitset()?;
+    let mut guards = Vec::new();
+    for sub in subs {
+        guards.push(
+            ws.attach_notification(sub.listener())
+                .map_err(|e| anyhow::anyhow!("attach {}: {e:?}", sub.name()))?,
+        );
+    }
+    tracing::info!("latency probe ready on {} streams", subs.len());
+    let mut seqs = vec![SeqTracker::default(); subs.len()];
+    let mut h = AgeHistogram::new();
+    let start = Instant::now();
+    let mut failure = None;
+    while !shutdown.requested() && failure.is_none() {
+        if seconds.is_some_and(|s| start.elapsed().as_secs_f64() >= s) {
+            break;
+        }
+        ws.wait_and_process_once_with_timeout(
+            |id| {
+                for (i, g) in guards.iter().enumerate() {
+                    if id.has_event_from(g) {
+                        if let Err(e) = subs[i].drain(|v| {
+                            let (s, t) = stamp(v);
+                            h.record_ns(now_ns().saturating_sub(t));
+                            seqs[i].observe(s);
+                        }) {
+                            failure = Some(e);
+                        }
+                    }
+                }
+                CallbackProgression::Continue
+            },
+            taxel_runtime::ipc::TICK,
+        )
+        .map_err(|e| anyhow::anyhow!("waitset: {e:?}"))?;
+    }
+    if let Some(e) = failure {
+        return Err(e.into());
+    }
+    let mut total = SeqTracker::default();
+    for s in &seqs {
+        total.received += s.received;
+        total.dropped += s.dropped;
+    }
+    Ok((total, h, start.elapsed().as_secs_f64()))
+}
+
 fn run(a: Args) -> Result<(), Failure> {
-    taxel_msgs::sensor_id_bytes(&a.sensor).config_err()?;
+    for s in &a.sensor {
+        taxel_msgs::sensor_id_bytes(s).config_err()?;
+    }
     if let Some(s) = a.seconds {
         if !(s.is_finite() && s > 0.0) {
             return Err(Failure::config(anyhow::anyhow!(
@@ -83,10 +140,37 @@ fn run(a: Args) -> Result<(), Failure> {
         }
     }
     let shutdown = Shutdown::install().runtime_err()?;
-    let ipc = Ipc::open(&a.common.prefix, &format!("latency-{}", a.sensor)).runtime_err()?;
-    let (seq, h, secs) = if a.stream == "raw" {
+    let name = if a.sensor.len() == 1 {
+        a.sensor[0].clone()
+    } else {
+        format!("{}x", a.sensor.len())
+    };
+    let ipc = Ipc::open(&a.common.prefix, &format!("latency-{name}")).runtime_err()?;
+    let (seq, h, secs) = if a.sensor.len() > 1 {
+        if a.wake != WakeMode::Event {
+            return Err(Failure::config(anyhow::anyhow!(
+                "several sensors are measured event-driven only (drop --wake)"
+            )));
+        }
+        if a.stream == "raw" {
+            let mut subs = Vec::new();
+            for s in &a.sensor {
+                subs.push(ipc.subscriber::<RawFrame>(s, Stream::Raw).runtime_err()?);
+            }
+            measure_many(&subs, |f| (f.seq, f.t_capture_ns), a.seconds, &shutdown).runtime_err()?
+        } else {
+            let mut subs = Vec::new();
+            for s in &a.sensor {
+                subs.push(
+                    ipc.subscriber::<ForceSample>(s, Stream::Force)
+                        .runtime_err()?,
+                );
+            }
+            measure_many(&subs, |f| (f.seq, f.t_capture_ns), a.seconds, &shutdown).runtime_err()?
+        }
+    } else if a.stream == "raw" {
         let sub = ipc
-            .subscriber::<RawFrame>(&a.sensor, Stream::Raw)
+            .subscriber::<RawFrame>(&a.sensor[0], Stream::Raw)
             .runtime_err()?;
         measure(
             &sub,
@@ -98,7 +182,7 @@ fn run(a: Args) -> Result<(), Failure> {
         .runtime_err()?
     } else {
         let sub = ipc
-            .subscriber::<ForceSample>(&a.sensor, Stream::Force)
+            .subscriber::<ForceSample>(&a.sensor[0], Stream::Force)
             .runtime_err()?;
         measure(
             &sub,
@@ -125,7 +209,7 @@ fn run(a: Args) -> Result<(), Failure> {
     } else {
         println!(
             "taxel/{}/{}: {} samples in {secs:.1} s, dropped {}\n  age p50 {:.1} us | p90 {:.1} us | p99 {:.1} us | p99.9 {:.1} us | max {:.1} us",
-            a.sensor,
+            a.sensor.join(","),
             a.stream,
             seq.received,
             seq.dropped,
@@ -139,7 +223,7 @@ fn run(a: Args) -> Result<(), Failure> {
     if seq.received == 0 {
         return Err(Failure::runtime(anyhow::anyhow!(
             "no samples on taxel/{}/{} under prefix {:?} in {secs:.1} s: unknown sensor, or its pipeline is not running",
-            a.sensor,
+            a.sensor.join(","),
             a.stream,
             a.common.prefix
         )));

@@ -272,6 +272,80 @@ fn force_path(
     Ok(from_json(case, &json, cpu))
 }
 
+/// `sensors` sensors at `rate` Hz each: publishers, calibrators (event) and one probe on all
+/// their force streams; reports the summed samples and drops.
+fn many(
+    case: &str,
+    sensors: usize,
+    secs: f64,
+    rate: f64,
+    n: usize,
+    cal: &str,
+) -> anyhow::Result<CaseResult> {
+    let prefix = format!("txbench{}_{n}_", std::process::id());
+    let names: Vec<String> = (0..sensors).map(|i| format!("b{i}")).collect();
+    let mut cals = Vec::new();
+    for name in &names {
+        cals.push(taxel(
+            &[
+                s("calibrator"),
+                s("run"),
+                s("--sensor"),
+                name.clone(),
+                s("--calibration"),
+                s(cal),
+            ],
+            &prefix,
+        )?);
+    }
+    wait_nodes(&prefix, sensors);
+    let probe = taxel(
+        &[
+            s("latency"),
+            s("--sensor"),
+            names.join(","),
+            s("--seconds"),
+            secs.to_string(),
+            s("--json"),
+        ],
+        &prefix,
+    )?;
+    wait_nodes(&prefix, sensors + 1);
+    let c0: f64 = cals.iter().map(|c| cpu_of(c.id())).sum();
+    let mut pubs = Vec::new();
+    for name in &names {
+        pubs.push(taxel(
+            &[
+                s("publisher"),
+                s("--sensor"),
+                name.clone(),
+                s("--seconds"),
+                (secs + 1.0).to_string(),
+                s("sim"),
+                s("--rate-hz"),
+                rate.to_string(),
+            ],
+            &prefix,
+        )?);
+    }
+    let out = output(probe);
+    let cal_cpu = (cals.iter().map(|c| cpu_of(c.id())).sum::<f64>() - c0).max(0.0);
+    for p in pubs.iter_mut() {
+        let _ = p.wait();
+    }
+    for c in cals.iter_mut() {
+        // SAFETY: kill(2) on our own child.
+        unsafe {
+            libc::kill(c.id() as i32, libc::SIGINT);
+        }
+        let _ = c.wait();
+    }
+    let _ = taxel_runtime::ipc::release_prefix(&prefix);
+    let json = json_line(&out);
+    let cpu = (cal_cpu + field(&json, "cpu_s")) / secs * 100.0;
+    Ok(from_json(case, &json, cpu))
+}
+
 fn machine() -> String {
     let model = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
@@ -363,6 +437,20 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
             Box::new({
                 let c = cal_s.clone();
                 move |n| force_path("force_path_adaptive", "adaptive", secs, rate, n, &c)
+            }),
+        ),
+        (
+            "glove_5_sensors",
+            Box::new({
+                let c = cal_s.clone();
+                move |n| many("glove_5_sensors", 5, secs, rate, n, &c)
+            }),
+        ),
+        (
+            "skin_16_sensors",
+            Box::new({
+                let c = cal_s.clone();
+                move |n| many("skin_16_sensors", 16, secs, rate, n, &c)
             }),
         ),
     ];
