@@ -42,6 +42,8 @@ struct CaseResult {
     max: f64,
     /// CPU of the waiting processes (% of one core each, summed).
     cpu_pct: f64,
+    /// Stream rate of the case (Hz).
+    rate_hz: f64,
 }
 
 fn field(json: &str, key: &str) -> f64 {
@@ -116,6 +118,7 @@ fn from_json(case: &str, json: &str, cpu_pct: f64) -> CaseResult {
         p999: field(json, "p999_us"),
         max: field(json, "max_us"),
         cpu_pct,
+        rate_hz: 0.0,
     }
 }
 
@@ -238,6 +241,20 @@ fn force_path(
     n: usize,
     cal: &str,
 ) -> anyhow::Result<CaseResult> {
+    force_path_reloading(case, wake, secs, rate, n, cal, 0)
+}
+
+/// The force path while the calibration file is replaced (atomic rename, new version)
+/// `reloads` times, evenly over the measurement.
+fn force_path_reloading(
+    case: &str,
+    wake: &str,
+    secs: f64,
+    rate: f64,
+    n: usize,
+    cal: &str,
+    reloads: usize,
+) -> anyhow::Result<CaseResult> {
     let prefix = format!("txbench{}_{n}_", std::process::id());
     let mut calibrator = taxel(
         &[
@@ -258,7 +275,25 @@ fn force_path(
     let cal_pid = calibrator.id();
     let c0 = cpu_of(cal_pid);
     let mut publisher = publisher(&prefix, secs, rate)?;
+    let reloader = (reloads > 0).then(|| {
+        let path = PathBuf::from(cal);
+        let text = std::fs::read_to_string(&path).unwrap_or_default();
+        std::thread::spawn(move || {
+            let every = Duration::from_secs_f64(secs / (reloads as f64 + 1.0));
+            for v in 0..reloads {
+                std::thread::sleep(every);
+                let tmp = path.with_extension("tmp");
+                let body = text.replacen("version = 1", &format!("version = {}", v + 2), 1);
+                if std::fs::write(&tmp, body).is_ok() {
+                    let _ = std::fs::rename(&tmp, &path);
+                }
+            }
+        })
+    });
     let out = output(probe);
+    if let Some(r) = reloader {
+        let _ = r.join();
+    }
     let cal_cpu = (cpu_of(cal_pid) - c0).max(0.0);
     let _ = publisher.wait();
     // SAFETY: kill(2) on our own child.
@@ -440,6 +475,65 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
             }),
         ),
         (
+            "reload_none_event",
+            Box::new({
+                let c = cal_s.clone();
+                move |n| {
+                    let own = format!("{c}.noreload.toml");
+                    std::fs::copy(&c, &own)?;
+                    force_path_reloading("reload_none_event", "event", secs, rate, n, &own, 0)
+                }
+            }),
+        ),
+        (
+            "reload_100_event",
+            Box::new({
+                let c = cal_s.clone();
+                move |n| {
+                    let own = format!("{c}.reload.toml");
+                    std::fs::copy(&c, &own)?;
+                    force_path_reloading(
+                        "reload_100_event",
+                        "event",
+                        secs.max(3.0),
+                        rate,
+                        n,
+                        &own,
+                        100,
+                    )
+                }
+            }),
+        ),
+        (
+            "max_rate_zero_loss",
+            Box::new({
+                let c = cal_s.clone();
+                move |n| {
+                    let mut best: Option<CaseResult> = None;
+                    for (k, r) in [1000.0, 2000.0, 5000.0, 10000.0, 20000.0]
+                        .iter()
+                        .enumerate()
+                    {
+                        let mut res = force_path(
+                            "max_rate_zero_loss",
+                            "event",
+                            secs.min(3.0),
+                            *r,
+                            100 + n * 10 + k,
+                            &c,
+                        )?;
+                        res.rate_hz = *r;
+                        let lossless = res.dropped == 0.0 && res.received > 0.5 * r * secs.min(3.0);
+                        if !lossless {
+                            break;
+                        }
+                        best = Some(res);
+                    }
+                    best.ok_or_else(|| anyhow::anyhow!("lost frames even at 1 kHz"))
+                }
+            }),
+        ),
+        (
             "glove_5_sensors",
             Box::new({
                 let c = cal_s.clone();
@@ -456,17 +550,21 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
     ];
     for (i, (name, f)) in steps.iter().enumerate() {
         eprintln!("taxel bench: {name} ({secs} s at {rate} Hz) ...");
-        cases.push(f(i)?);
+        let mut c = f(i)?;
+        if c.rate_hz == 0.0 {
+            c.rate_hz = rate;
+        }
+        cases.push(c);
     }
     let m = machine();
     let mut md = format!(
-        "# taxel bench\n\n{m}; {rate} Hz, RawFrame payload ({} bytes), {secs} s per case, separate processes. Age = receive time - capture time (CLOCK_MONOTONIC); force paths are two hops.\n\n| case | received | dropped | p50 (us) | p90 (us) | p99 (us) | p99.9 (us) | max (us) | CPU of waiting processes (% core) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "# taxel bench\n\n{m}; {rate} Hz, RawFrame payload ({} bytes), {secs} s per case, separate processes. Age = receive time - capture time (CLOCK_MONOTONIC); force paths are two hops.\n\n| case | rate (Hz) | received | dropped | p50 (us) | p90 (us) | p99 (us) | p99.9 (us) | max (us) | CPU of waiting processes (% core) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         peers::MSG
     );
     for c in &cases {
         md.push_str(&format!(
-            "| {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
-            c.case, c.received, c.dropped, c.p50, c.p90, c.p99, c.p999, c.max, c.cpu_pct
+            "| {} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+            c.case, c.rate_hz, c.received, c.dropped, c.p50, c.p90, c.p99, c.p999, c.max, c.cpu_pct
         ));
     }
     let cases_json: Vec<String> = cases
@@ -474,8 +572,9 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
         .map(|c| {
             let num = |v: f64| if v.is_finite() { format!("{v:.1}") } else { "null".into() };
             format!(
-                "{{\"case\": \"{}\", \"received\": {}, \"p50_us\": {}, \"p90_us\": {}, \"p99_us\": {}, \"p999_us\": {}, \"max_us\": {}, \"dropped\": {}, \"cpu_pct\": {}}}",
+                "{{\"case\": \"{}\", \"rate_hz\": {}, \"received\": {}, \"p50_us\": {}, \"p90_us\": {}, \"p99_us\": {}, \"p999_us\": {}, \"max_us\": {}, \"dropped\": {}, \"cpu_pct\": {}}}",
                 c.case,
+                c.rate_hz,
                 num(c.received),
                 num(c.p50),
                 num(c.p90),
