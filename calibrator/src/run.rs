@@ -185,6 +185,7 @@ pub fn run(
         cfg.wake,
         shutdown,
         None,
+        taxel_runtime::ipc::TICK,
         |f| f.t_capture_ns,
         |frame, _| {
             // Curvature estimates are rare and history for a late joiner comes without a

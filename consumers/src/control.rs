@@ -237,6 +237,8 @@ fn run(a: Args) -> Result<(), Failure> {
         a.wake,
         &shutdown,
         until,
+        // The watchdog is checked on ticks: tick at half its period.
+        Duration::from_secs_f64(a.watchdog_ms / 2000.0),
         |f| f.t_capture_ns,
         |f, t| {
             last_arrival.set(t);

@@ -61,6 +61,7 @@ fn measure<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
         mode,
         shutdown,
         until,
+        taxel_runtime::ipc::TICK,
         |v| stamp(v).1,
         |v, _| {
             let now = now_ns();

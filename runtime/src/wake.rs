@@ -125,21 +125,23 @@ impl Adaptive {
 }
 
 /// Receives `sub`'s samples in `mode` until shutdown or `until`, handing each to `on_sample`
-/// (with its arrival time) and calling `on_tick` at least every 100 ms. `capture_ns` gives a
+/// (with its arrival time) and calling `on_tick` about every `tick_every` (at most 100 ms). `capture_ns` gives a
 /// sample's capture time, which the adaptive mode uses to learn the stream's rhythm.
 pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     sub: &StreamSubscriber<T>,
     mode: WakeMode,
     shutdown: &Shutdown,
     until: Option<Instant>,
+    tick_every: Duration,
     capture_ns: impl Fn(&T) -> u64,
     mut on_sample: impl FnMut(&T, u64) -> Result<(), IpcError>,
     mut on_tick: impl FnMut(),
 ) -> Result<AdaptiveStats, IpcError> {
+    let tick_every = tick_every.clamp(Duration::from_millis(1), ipc::TICK);
     let done = |s: &Shutdown| s.requested() || until.is_some_and(|u| Instant::now() >= u);
     let mut last_tick = Instant::now();
     let mut tick = |last: &mut Instant| {
-        if last.elapsed() >= ipc::TICK {
+        if last.elapsed() >= tick_every {
             on_tick();
             *last = Instant::now();
         }
@@ -169,7 +171,7 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
                         }
                         CallbackProgression::Continue
                     },
-                    ipc::TICK,
+                    tick_every,
                 )
                 .map_err(|e| IpcError {
                     what: "waitset".into(),
@@ -257,7 +259,7 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
                     a.stats.fallbacks += 1;
                 }
                 // Late or unknown: sleep on the event.
-                sub.wait_wakeup(ipc::TICK)?;
+                sub.wait_wakeup(tick_every)?;
                 if let Some((c, t)) = poll()? {
                     let planned = a.plan().is_some();
                     a.arrived_with(c, t, false, planned);
