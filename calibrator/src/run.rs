@@ -11,7 +11,7 @@ use taxel_msgs::{
 };
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::stats::SeqTracker;
-use taxel_runtime::wake::{receive_loop, WakeMode};
+use taxel_runtime::wake::{receive_loop, LoopOptions, WakeMode};
 use taxel_runtime::{now_ns, Shutdown};
 use tracing::{debug, error, info};
 
@@ -182,10 +182,8 @@ pub fn run(
     let mut frames_at_report = 0;
     let wake = receive_loop(
         &raw,
-        cfg.wake,
+        LoopOptions::new(cfg.wake),
         shutdown,
-        None,
-        taxel_runtime::ipc::TICK,
         |f| f.t_capture_ns,
         |frame, _| {
             // Curvature estimates are rare and history for a late joiner comes without a

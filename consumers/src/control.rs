@@ -12,7 +12,7 @@ use taxel_msgs::{force_flags, ForceSample, Stream};
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
 use taxel_runtime::stats::SeqTracker;
-use taxel_runtime::wake::{receive_loop, WakeMode};
+use taxel_runtime::wake::{receive_loop, LoopOptions, WakeMode};
 use taxel_runtime::{now_ns, Shutdown};
 
 use crate::age::AgeHistogram;
@@ -234,11 +234,13 @@ fn run(a: Args) -> Result<(), Failure> {
     let until = a.seconds.map(|s| start + Duration::from_secs_f64(s));
     let result = receive_loop(
         &force,
-        a.wake,
+        LoopOptions {
+            mode: a.wake,
+            until,
+            // The watchdog is checked on ticks: tick at half its period.
+            tick: Duration::from_secs_f64(a.watchdog_ms / 2000.0),
+        },
         &shutdown,
-        until,
-        // The watchdog is checked on ticks: tick at half its period.
-        Duration::from_secs_f64(a.watchdog_ms / 2000.0),
         |f| f.t_capture_ns,
         |f, t| {
             last_arrival.set(t);

@@ -10,7 +10,7 @@ use taxel_msgs::{ForceSample, RawFrame, Stream};
 use taxel_runtime::ipc::{Ipc, StreamSubscriber};
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
 use taxel_runtime::stats::SeqTracker;
-use taxel_runtime::wake::{receive_loop, WakeMode};
+use taxel_runtime::wake::{receive_loop, LoopOptions, WakeMode};
 use taxel_runtime::{now_ns, Shutdown};
 
 use crate::age::{json_report, AgeHistogram};
@@ -58,10 +58,11 @@ fn measure<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     let until = seconds.map(|s| start + std::time::Duration::from_secs_f64(s));
     receive_loop(
         sub,
-        mode,
+        LoopOptions {
+            until,
+            ..LoopOptions::new(mode)
+        },
         shutdown,
-        until,
-        taxel_runtime::ipc::TICK,
         |v| stamp(v).1,
         |v, _| {
             let now = now_ns();

@@ -127,17 +127,37 @@ impl Adaptive {
 /// Receives `sub`'s samples in `mode` until shutdown or `until`, handing each to `on_sample`
 /// (with its arrival time) and calling `on_tick` about every `tick_every` (at most 100 ms). `capture_ns` gives a
 /// sample's capture time, which the adaptive mode uses to learn the stream's rhythm.
+/// How a receive loop waits and for how long.
+#[derive(Debug, Clone, Copy)]
+pub struct LoopOptions {
+    pub mode: WakeMode,
+    /// Stop at this instant (None: at shutdown only).
+    pub until: Option<Instant>,
+    /// Call `on_tick` about this often (1 ms ..= 100 ms).
+    pub tick: Duration,
+}
+
+impl LoopOptions {
+    /// `mode`, no end, ticks every 100 ms.
+    pub fn new(mode: WakeMode) -> LoopOptions {
+        LoopOptions {
+            mode,
+            until: None,
+            tick: ipc::TICK,
+        }
+    }
+}
+
 pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     sub: &StreamSubscriber<T>,
-    mode: WakeMode,
+    opts: LoopOptions,
     shutdown: &Shutdown,
-    until: Option<Instant>,
-    tick_every: Duration,
     capture_ns: impl Fn(&T) -> u64,
     mut on_sample: impl FnMut(&T, u64) -> Result<(), IpcError>,
     mut on_tick: impl FnMut(),
 ) -> Result<AdaptiveStats, IpcError> {
-    let tick_every = tick_every.clamp(Duration::from_millis(1), ipc::TICK);
+    let LoopOptions { mode, until, tick } = opts;
+    let tick_every = tick.clamp(Duration::from_millis(1), ipc::TICK);
     let done = |s: &Shutdown| s.requested() || until.is_some_and(|u| Instant::now() >= u);
     let mut last_tick = Instant::now();
     let mut tick = |last: &mut Instant| {
