@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Duration;
 
-use common::{run, spawn, unique_prefix};
+use common::{run, spawn, spawn_ready, unique_prefix};
 use taxel_formats::{Record, RecordFileReader, Recording};
 
 #[test]
@@ -97,12 +97,13 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
     // Live: one estimate from the start (as the protocol), replayed at 4x speed.
     let rec_file = dir.path().join("live.taxrec").display().to_string();
     let limit = Duration::from_secs(20);
-    let mut logger = spawn(
+    let mut logger = spawn_ready(
         "logger",
         &prefix,
         &["logger", "record", "--sensor", "s0", "--out", &rec_file],
+        "logger ready",
     );
-    let mut calibrator = spawn(
+    let mut calibrator = spawn_ready(
         "calibrator",
         &prefix,
         &[
@@ -113,8 +114,9 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
             "--calibration",
             &cal.display().to_string(),
         ],
+        "calibrator ready",
     );
-    let mut estimator = spawn(
+    let mut estimator = spawn_ready(
         "estimator",
         &prefix,
         &[
@@ -129,14 +131,8 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
             "--rebaseline-s",
             "1e9",
         ],
+        "estimator ready",
     );
-    for (p, what) in [
-        (&mut logger, "logger ready"),
-        (&mut calibrator, "calibrator ready"),
-        (&mut estimator, "estimator ready"),
-    ] {
-        p.wait_for(what, limit);
-    }
     let mut publisher = spawn(
         "publisher",
         &prefix,

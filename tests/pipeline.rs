@@ -9,7 +9,7 @@ mod common;
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
-use common::{shm_files, spawn, unique_prefix};
+use common::{shm_files, spawn, spawn_ready, unique_prefix};
 use taxel_formats::{Record, RecordFileReader};
 
 const SIM_CAL: &str = include_str!("../calibrations/sim-default.toml");
@@ -58,12 +58,13 @@ fn pipeline_streams_tracks_force_hot_reloads_and_shuts_down_clean() {
     );
     let limit = Duration::from_secs(20);
 
-    let mut logger = spawn(
+    let mut logger = spawn_ready(
         "logger",
         &prefix,
         &["logger", "record", "--sensor", "s0", "--out", &rec_s],
+        "logger ready",
     );
-    let mut calibrator = spawn(
+    let mut calibrator = spawn_ready(
         "calibrator",
         &prefix,
         &[
@@ -74,23 +75,22 @@ fn pipeline_streams_tracks_force_hot_reloads_and_shuts_down_clean() {
             "--calibration",
             &cal_s,
         ],
+        "calibrator ready",
     );
-    let mut estimator = spawn(
+    let mut estimator = spawn_ready(
         "estimator",
         &prefix,
         &["estimator", "run", "--sensor", "s0", "--curvature-m1", "40"],
+        "estimator ready",
     );
-    let mut latency = spawn(
+    let mut latency = spawn_ready(
         "latency",
         &prefix,
         &["latency", "--sensor", "s0", "--json", "--seconds", "4"],
+        "latency probe ready",
     );
-    logger.wait_for("logger ready", limit);
-    calibrator.wait_for("calibrator ready", limit);
-    estimator.wait_for("estimator ready", limit);
-    latency.wait_for("latency probe ready", limit);
 
-    let mut publisher = spawn(
+    let mut publisher = spawn_ready(
         "publisher",
         &prefix,
         &[
@@ -103,8 +103,8 @@ fn pipeline_streams_tracks_force_hot_reloads_and_shuts_down_clean() {
             "--scenario",
             &scen_s,
         ],
+        "publisher ready",
     );
-    publisher.wait_for("publisher ready", limit);
     estimator.wait_for("first no-load baseline", limit);
 
     // Hot reload mid-stream: atomic replacement by rename, as editors do.
@@ -273,12 +273,12 @@ fn late_calibrator_gets_the_latest_curvature_from_history() {
         rec.display().to_string(),
     );
     let limit = Duration::from_secs(20);
-    let mut estimator = spawn(
+    let mut estimator = spawn_ready(
         "estimator",
         &prefix,
         &["estimator", "run", "--sensor", "s0", "--curvature-m1", "30"],
+        "estimator ready",
     );
-    estimator.wait_for("estimator ready", limit);
     let mut publisher = spawn(
         "publisher",
         &prefix,
@@ -287,13 +287,13 @@ fn late_calibrator_gets_the_latest_curvature_from_history() {
     estimator.wait_for("first no-load baseline", limit);
     // Wait until the press is on, then start the consumers.
     std::thread::sleep(Duration::from_millis(1500));
-    let mut logger = spawn(
+    let mut logger = spawn_ready(
         "logger",
         &prefix,
         &["logger", "record", "--sensor", "s0", "--out", &rec_s],
+        "logger ready",
     );
-    logger.wait_for("logger ready", limit);
-    let mut calibrator = spawn(
+    let mut calibrator = spawn_ready(
         "calibrator",
         &prefix,
         &[
@@ -304,8 +304,8 @@ fn late_calibrator_gets_the_latest_curvature_from_history() {
             "--calibration",
             &cal_s,
         ],
+        "calibrator ready",
     );
-    calibrator.wait_for("calibrator ready", limit);
     std::thread::sleep(Duration::from_secs(2));
     for p in [&calibrator, &logger, &publisher, &estimator] {
         p.sigint();
@@ -346,7 +346,7 @@ fn every_wake_mode_receives_every_sample() {
     std::fs::write(&cal, SIM_CAL).expect("write calibration");
     let cal_s = cal.display().to_string();
     let limit = Duration::from_secs(20);
-    let mut calibrator = spawn(
+    let mut calibrator = spawn_ready(
         "calibrator",
         &prefix,
         &[
@@ -359,12 +359,12 @@ fn every_wake_mode_receives_every_sample() {
             "--wake",
             "adaptive",
         ],
+        "calibrator ready",
     );
-    calibrator.wait_for("calibrator ready", limit);
     let mut probes: Vec<_> = ["event", "busy", "adaptive"]
         .iter()
         .map(|m| {
-            let mut p = spawn(
+            spawn_ready(
                 m,
                 &prefix,
                 &[
@@ -377,9 +377,8 @@ fn every_wake_mode_receives_every_sample() {
                     "--wake",
                     m,
                 ],
-            );
-            p.wait_for("latency probe ready", limit);
-            p
+                "latency probe ready",
+            )
         })
         .collect();
     let mut publisher = spawn(

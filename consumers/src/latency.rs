@@ -130,6 +130,26 @@ fn measure_many<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     Ok((total, h, start.elapsed().as_secs_f64()))
 }
 
+/// One stream of every requested sensor: one sensor in the requested wake mode, several
+/// together in one WaitSet.
+fn measure_streams<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
+    ipc: &Ipc,
+    a: &Args,
+    stream: Stream,
+    stamp: fn(&T) -> (u64, u64),
+    shutdown: &Shutdown,
+) -> Result<(SeqTracker, AgeHistogram, f64), Failure> {
+    let mut subs = Vec::new();
+    for s in &a.sensor {
+        subs.push(ipc.subscriber::<T>(s, stream).runtime_err()?);
+    }
+    match subs.as_slice() {
+        [one] => measure(one, stamp, a.wake, a.seconds, shutdown),
+        many => measure_many(many, stamp, a.seconds, shutdown),
+    }
+    .runtime_err()
+}
+
 fn run(a: Args) -> Result<(), Failure> {
     for s in &a.sensor {
         taxel_msgs::sensor_id_bytes(s).config_err()?;
@@ -148,52 +168,27 @@ fn run(a: Args) -> Result<(), Failure> {
         format!("{}x", a.sensor.len())
     };
     let ipc = Ipc::open(&a.common.prefix, &format!("latency-{name}")).runtime_err()?;
-    let (seq, h, secs) = if a.sensor.len() > 1 {
-        if a.wake != WakeMode::Event {
-            return Err(Failure::config(anyhow::anyhow!(
-                "several sensors are measured event-driven only (drop --wake)"
-            )));
-        }
-        if a.stream == "raw" {
-            let mut subs = Vec::new();
-            for s in &a.sensor {
-                subs.push(ipc.subscriber::<RawFrame>(s, Stream::Raw).runtime_err()?);
-            }
-            measure_many(&subs, |f| (f.seq, f.t_capture_ns), a.seconds, &shutdown).runtime_err()?
-        } else {
-            let mut subs = Vec::new();
-            for s in &a.sensor {
-                subs.push(
-                    ipc.subscriber::<ForceSample>(s, Stream::Force)
-                        .runtime_err()?,
-                );
-            }
-            measure_many(&subs, |f| (f.seq, f.t_capture_ns), a.seconds, &shutdown).runtime_err()?
-        }
-    } else if a.stream == "raw" {
-        let sub = ipc
-            .subscriber::<RawFrame>(&a.sensor[0], Stream::Raw)
-            .runtime_err()?;
-        measure(
-            &sub,
+    if a.sensor.len() > 1 && a.wake != WakeMode::Event {
+        return Err(Failure::config(anyhow::anyhow!(
+            "several sensors are measured event-driven only (drop --wake)"
+        )));
+    }
+    let (seq, h, secs) = if a.stream == "raw" {
+        measure_streams::<RawFrame>(
+            &ipc,
+            &a,
+            Stream::Raw,
             |f| (f.seq, f.t_capture_ns),
-            a.wake,
-            a.seconds,
             &shutdown,
-        )
-        .runtime_err()?
+        )?
     } else {
-        let sub = ipc
-            .subscriber::<ForceSample>(&a.sensor[0], Stream::Force)
-            .runtime_err()?;
-        measure(
-            &sub,
+        measure_streams::<ForceSample>(
+            &ipc,
+            &a,
+            Stream::Force,
             |f| (f.seq, f.t_capture_ns),
-            a.wake,
-            a.seconds,
             &shutdown,
-        )
-        .runtime_err()?
+        )?
     };
     if a.json {
         println!(

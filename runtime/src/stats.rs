@@ -1,5 +1,5 @@
-//! Small helpers for the per-second statistics every process reports: a sample-age histogram
-//! (HdrHistogram-free, fixed log buckets, no allocation on record) and a sequence-gap counter.
+//! Statistics every consumer keeps: a counter of frames lost from gaps in the per-sensor
+//! sequence number (the sample-age histogram is `taxel_consumers::age`).
 
 /// Counts frames lost from jumps in a per-sensor sequence number.
 #[derive(Debug, Clone, Default)]

@@ -64,6 +64,13 @@ pub fn spawn(name: &str, prefix: &str, args: &[&str]) -> Proc {
     }
 }
 
+/// Spawns `taxel args...` and waits (20 s at most) until it logs `ready`.
+pub fn spawn_ready(name: &str, prefix: &str, args: &[&str], ready: &str) -> Proc {
+    let mut p = spawn(name, prefix, args);
+    p.wait_for(ready, Duration::from_secs(20));
+    p
+}
+
 impl Proc {
     /// Collects output lines that have arrived so far.
     pub fn pump(&mut self) {
