@@ -11,7 +11,7 @@ pub mod rng;
 pub mod scenario;
 pub mod simulator;
 
-pub use model::SensorModel;
+pub use model::{ReadoutKind, SensorModel};
 pub use scenario::{Contact, Mounting, Scenario, Step, Timeline, Tremor};
 pub use simulator::{FrameTruth, Simulator};
 

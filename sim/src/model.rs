@@ -6,11 +6,33 @@ use serde::{Deserialize, Serialize};
 
 use crate::SimError;
 
-/// The readout electronics of the paper's board: row-column scan, non-inverting amplifier
-/// `Vout = Vref (1 + Rg G)`, one ADC.
+/// What the board reports for each crossing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ReadoutKind {
+    /// The paper's board: non-inverting amplifier `Vout = Vref (1 + Rg G)` into the ADC; the
+    /// reading rises with force.
+    #[default]
+    Amplifier,
+    /// The crossing's resistance in ohms (`1 / G`), as boards that log a divider ratio times a
+    /// reference resistor do; the reading falls with force. Rounded to `resolution_ohm`.
+    Resistance,
+    /// A voltage divider into the ADC: `code = max_code R / (R + r_ref_ohm)`; falls with force.
+    Divider,
+}
+
+/// The readout electronics. The paper's board (the default) does a row-column scan into a
+/// non-inverting amplifier `Vout = Vref (1 + Rg G)` and one ADC; other boards report the
+/// resistance or a divider code (`kind`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Readout {
+    /// What the reading is: `amplifier` (default), `resistance` or `divider`.
+    pub kind: ReadoutKind,
+    /// Reference resistor of the divider (ohm; `divider` only).
+    pub r_ref_ohm: f64,
+    /// Rounding step of a `resistance` reading (ohm; 0 = no rounding).
+    pub resolution_ohm: f64,
     /// Reference voltage on the non-inverting inputs and unselected rows (V).
     pub vref_v: f64,
     /// Feedback resistor of each column amplifier (ohm).
@@ -21,13 +43,17 @@ pub struct Readout {
     pub adc_ref_v: f64,
     /// ADC resolution (bits).
     pub adc_bits: u32,
-    /// White noise on each reading, one standard deviation (ADC counts), before quantization.
+    /// White noise on each reading, one standard deviation (ADC counts, or ohms for
+    /// `resistance`), before quantization.
     pub noise_counts: f64,
 }
 
 impl Default for Readout {
     fn default() -> Self {
         Readout {
+            kind: ReadoutKind::Amplifier,
+            r_ref_ohm: 1000.0,
+            resolution_ohm: 1.0,
             vref_v: 0.5,
             rg_ohm: 5600.0,
             vsat_v: 5.0,
@@ -241,6 +267,17 @@ impl Default for ScanSkew {
     }
 }
 
+/// Measured per-crossing factors (for example fitted to a recording by taxel-simcheck): when
+/// given, they replace the random part-to-part draws of `spread`. Row-major, `rows * cols` each.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NodeFactors {
+    /// Multiplier of `material.g0_us` per crossing.
+    pub g0: Vec<f64>,
+    /// Multiplier of `material.gain_us_per_n` per crossing.
+    pub gain: Vec<f64>,
+}
+
 /// The whole sensor model: geometry, readout, static law, spread, curvature and the optional
 /// effect layers.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -253,6 +290,9 @@ pub struct SensorModel {
     pub readout: Readout,
     pub material: Material,
     pub spread: Spread,
+    /// Measured per-crossing factors replacing the spread draws (None = draw them).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub nodes: Option<NodeFactors>,
     pub curvature: Curvature,
     /// Effect layers, each `None` (off) unless given.
     pub creep: Option<Creep>,
@@ -270,6 +310,7 @@ impl Default for SensorModel {
             readout: Readout::default(),
             material: Material::default(),
             spread: Spread::default(),
+            nodes: None,
             curvature: Curvature::default(),
             creep: None,
             hysteresis: None,
@@ -353,6 +394,25 @@ impl SensorModel {
             finite_nonneg(m.r_floor_ohm),
             "material.r_floor_ohm must be >= 0",
         )?;
+        check(
+            r.r_ref_ohm.is_finite() && r.r_ref_ohm > 0.0,
+            "readout.r_ref_ohm must be > 0",
+        )?;
+        check(
+            finite_nonneg(r.resolution_ohm),
+            "readout.resolution_ohm must be >= 0",
+        )?;
+        if let Some(nf) = &self.nodes {
+            let n = self.rows * self.cols;
+            check(
+                nf.g0.len() == n && nf.gain.len() == n,
+                &format!("nodes.g0 and nodes.gain must have rows * cols = {n} entries"),
+            )?;
+            check(
+                nf.g0.iter().chain(&nf.gain).all(|v| finite_nonneg(*v)),
+                "nodes.g0 and nodes.gain must be finite and >= 0",
+            )?;
+        }
         let s = &self.spread;
         for (v, name) in [
             (s.node_gain_log_sd, "spread.node_gain_log_sd"),

@@ -2,7 +2,7 @@
 //! (static law, spread, curvature, effect layers), the readout and the ADC. Pure and seeded:
 //! the same model, scenario and seed give identical frames.
 
-use crate::model::SensorModel;
+use crate::model::{ReadoutKind, SensorModel};
 use crate::rng::Rng;
 use crate::scenario::{Contact, Mounting, Scenario, Timeline, Tremor};
 use crate::SimError;
@@ -52,6 +52,10 @@ pub struct Simulator {
     mounting: Option<(Mounting, u32, Vec<f64>, f64)>,
     g_s: Vec<f64>,
     vout_v: Vec<f64>,
+    /// Driven mode: the time of the previous frame and the force of this one (scan skew then
+    /// holds the force over the frame, since future inputs are unknown).
+    last_t_s: Option<f64>,
+    driven_force: Option<f64>,
 }
 
 /// Position across the bend, in (-1, 1), of each node for a mounting.
@@ -92,6 +96,10 @@ impl Simulator {
             node_gain.push((build_gain + s.node_gain_log_sd * spread.normal()).exp());
             node_g0.push((build_g0 + s.node_g0_log_sd * spread.normal()).exp());
         }
+        if let Some(nf) = &model.nodes {
+            node_gain.clone_from(&nf.gain);
+            node_g0.clone_from(&nf.g0);
+        }
         let mut xt = Rng::new(model.spread.build_seed.unwrap_or(seed), STREAM_CROSSTALK);
         let vos_max = model.crosstalk.as_ref().map_or(0.0, |c| c.vos_max_v);
         let vos_v = (0..model.cols)
@@ -126,6 +134,8 @@ impl Simulator {
             mounting: None,
             g_s: vec![0.0; n],
             vout_v: vec![0.0; n],
+            last_t_s: None,
+            driven_force: None,
         })
     }
 
@@ -203,6 +213,61 @@ impl Simulator {
         let t = self.frame as f64 * self.dt_s;
         self.frame += 1;
         let (mounting, trial) = self.timeline.mounting(t);
+        let contact = self.timeline.contact(t);
+        if self.contact.as_ref().map(|c| c.0) != Some(contact) {
+            let w = contact.weights(self.model.rows, self.model.cols);
+            self.contact = Some((contact, w));
+        }
+        let force_n = self.applied_force_n(t);
+        let ambient = self.timeline.temp_c(t);
+        self.advance(t, force_n, mounting, trial, ambient, out)
+    }
+
+    /// Produces one frame driven by recorded inputs instead of the scenario (re-simulating a
+    /// recording): the whole `force_n` acts on every node (a recording has no contact map, so
+    /// the per-node share is part of `nodes.gain`), at time `t_s`, with the given mounting
+    /// curvature, ambient temperature and trial. Frames must come in time order.
+    pub fn step_driven(
+        &mut self,
+        t_s: f64,
+        force_n: f64,
+        curvature_m1: f64,
+        temp_c: f64,
+        trial: u32,
+        out: &mut [f32],
+    ) -> FrameTruth {
+        if let Some(prev) = self.last_t_s {
+            self.dt_s = (t_s - prev).max(1e-6);
+        }
+        self.frame += 1;
+        if self.contact.is_none() {
+            let whole = Contact {
+                row: self.model.rows as f64 / 2.0,
+                col: self.model.cols as f64 / 2.0,
+                size_rows: self.model.rows as f64,
+                size_cols: self.model.cols as f64,
+            };
+            self.contact = Some((whole, vec![1.0; self.n]));
+        }
+        self.driven_force = Some(force_n);
+        let mounting = Mounting {
+            curvature_m1,
+            ..Mounting::default()
+        };
+        let truth = self.advance(t_s, force_n, mounting, trial, temp_c, out);
+        self.last_t_s = Some(t_s);
+        truth
+    }
+
+    fn advance(
+        &mut self,
+        t: f64,
+        force_n: f64,
+        mounting: Mounting,
+        trial: u32,
+        ambient: f64,
+        out: &mut [f32],
+    ) -> FrameTruth {
         if self.mounting.as_ref().map(|m| (m.0, m.1)) != Some((mounting, trial)) {
             // Each mounting conforms a little differently: scatter in the curvature the sheet
             // actually takes and in each node's baseline, drawn per trial.
@@ -223,13 +288,6 @@ impl Simulator {
             .mounting
             .as_ref()
             .map_or(mounting.curvature_m1, |m| m.3);
-        let contact = self.timeline.contact(t);
-        if self.contact.as_ref().map(|c| c.0) != Some(contact) {
-            let w = contact.weights(self.model.rows, self.model.cols);
-            self.contact = Some((contact, w));
-        }
-        let force_n = self.applied_force_n(t);
-        let ambient = self.timeline.temp_c(t);
         let thermal = match &self.model.thermal_drift {
             Some(th) => {
                 let ts = match self.t_sensor_c {
@@ -270,8 +328,8 @@ impl Simulator {
             _ => return,
         };
         for k in 0..self.n {
-            let f_total = match skew {
-                Some(dt) if dt > 0.0 => self.applied_force_n(t + dt * k as f64),
+            let f_total = match (skew, self.driven_force) {
+                (Some(dt), None) if dt > 0.0 => self.applied_force_n(t + dt * k as f64),
                 _ => force_n,
             };
             let mut f = f_total * weights[k];
@@ -307,6 +365,14 @@ impl Simulator {
     fn readout(&mut self) {
         let r = &self.model.readout;
         let (rows, cols) = (self.model.rows, self.model.cols);
+        if r.kind != ReadoutKind::Amplifier {
+            // Resistance and divider boards read each crossing on its own; `vout_v` then holds
+            // the crossing's resistance (ohm).
+            for (v, g) in self.vout_v.iter_mut().zip(&self.g_s) {
+                *v = 1.0 / g.max(1e-12);
+            }
+            return;
+        }
         match &self.model.crosstalk {
             None => {
                 for (v, g) in self.vout_v.iter_mut().zip(&self.g_s) {
@@ -349,6 +415,32 @@ impl Simulator {
     fn quantize(&mut self, out: &mut [f32]) {
         let r = &self.model.readout;
         let max = r.max_code();
+        match r.kind {
+            ReadoutKind::Amplifier => {}
+            ReadoutKind::Resistance => {
+                for (o, &ohm) in out.iter_mut().zip(&self.vout_v) {
+                    let mut v = ohm;
+                    if r.noise_counts > 0.0 {
+                        v += r.noise_counts * self.noise.normal();
+                    }
+                    if r.resolution_ohm > 0.0 {
+                        v = (v / r.resolution_ohm).round() * r.resolution_ohm;
+                    }
+                    *o = v.max(0.0) as f32;
+                }
+                return;
+            }
+            ReadoutKind::Divider => {
+                for (o, &ohm) in out.iter_mut().zip(&self.vout_v) {
+                    let mut code = max * ohm / (ohm + r.r_ref_ohm);
+                    if r.noise_counts > 0.0 {
+                        code += r.noise_counts * self.noise.normal();
+                    }
+                    *o = code.round().clamp(0.0, max) as f32;
+                }
+                return;
+            }
+        }
         for (o, &v) in out.iter_mut().zip(&self.vout_v) {
             let clipped = v.clamp(0.0, r.vsat_v);
             let mut code = clipped / r.adc_ref_v * max;
@@ -559,5 +651,56 @@ mod tests {
         };
         let frames = run(&m, &s, 1000);
         assert!(block_sum(&frames[999].1) > block_sum(&frames[20].1) + 20.0);
+    }
+}
+
+#[cfg(test)]
+mod driven_tests {
+    use super::*;
+    use crate::model::NodeFactors;
+
+    #[test]
+    fn driven_mode_follows_the_given_inputs_and_node_factors() {
+        let mut m = SensorModel::default();
+        m.readout.noise_counts = 0.0;
+        m.nodes = Some(NodeFactors {
+            g0: vec![1.0; 16],
+            gain: (0..16).map(|k| if k == 5 { 1.0 } else { 0.0 }).collect(),
+        });
+        let mut sim = Simulator::new(&m, &Scenario::default()).expect("valid");
+        let mut out = vec![0.0f32; 16];
+        sim.step_driven(0.0, 0.0, 0.0, 25.0, 0, &mut out);
+        let rest = out.clone();
+        sim.step_driven(0.01, 5.0, 0.0, 25.0, 0, &mut out);
+        assert!(out[5] > rest[5] + 50.0, "{} vs {}", out[5], rest[5]);
+        assert_eq!(out[0], rest[0], "a node with zero gain does not respond");
+        // Curvature lowers the sensitivity in driven mode too.
+        let mut bent = Simulator::new(&m, &Scenario::default()).expect("valid");
+        bent.step_driven(0.0, 5.0, 80.0, 25.0, 0, &mut out);
+        let mut flat = Simulator::new(&m, &Scenario::default()).expect("valid");
+        let mut out2 = vec![0.0f32; 16];
+        flat.step_driven(0.0, 5.0, 0.0, 25.0, 0, &mut out2);
+        assert!(out[5] < out2[5]);
+    }
+
+    #[test]
+    fn resistance_and_divider_readouts_fall_with_force() {
+        for kind in [ReadoutKind::Resistance, ReadoutKind::Divider] {
+            let mut m = SensorModel {
+                rows: 1,
+                cols: 1,
+                ..SensorModel::default()
+            };
+            m.readout.kind = kind;
+            m.readout.noise_counts = 0.0;
+            let mut sim = Simulator::new(&m, &Scenario::default()).expect("valid");
+            let mut out = vec![0.0f32; 1];
+            let mut prev = f32::INFINITY;
+            for (i, f) in [0.0, 1.0, 5.0, 20.0].iter().enumerate() {
+                sim.step_driven(i as f64 * 0.01, *f, 0.0, 25.0, 0, &mut out);
+                assert!(out[0] < prev, "{kind:?}: {} at {f} N", out[0]);
+                prev = out[0];
+            }
+        }
     }
 }
