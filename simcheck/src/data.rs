@@ -1,0 +1,296 @@
+//! The recording as the diagnosis sees it: stimulus (force, and curvature, temperature and
+//! trial when recorded), the readings, and the readout map between a reading and the crossing's
+//! conductance. Residuals live in a "residual domain" where the noise is roughly even: ADC codes
+//! for amplifier and divider boards, ln(ohm) for boards that report resistance.
+
+use std::path::Path;
+
+use taxel_formats::csv::Recording;
+use taxel_sim::model::Readout;
+use taxel_sim::ReadoutKind;
+
+/// How a reading maps to conductance (siemens) and back.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ReadoutMap {
+    /// `y = scale (1 + rg G)`, clipped at `rail` (codes).
+    Amplifier { scale: f64, rg: f64, rail: f64 },
+    /// `y = 1 / G` (ohm).
+    Resistance,
+    /// `y = max R / (R + r_ref)` (codes).
+    Divider { max: f64, r_ref: f64 },
+}
+
+impl ReadoutMap {
+    pub fn from_readout(r: &Readout) -> ReadoutMap {
+        match r.kind {
+            ReadoutKind::Amplifier => {
+                let scale = r.max_code() / r.adc_ref_v * r.vref_v;
+                ReadoutMap::Amplifier {
+                    scale,
+                    rg: r.rg_ohm,
+                    rail: (r.vsat_v / r.adc_ref_v * r.max_code()).min(r.max_code()),
+                }
+            }
+            ReadoutKind::Resistance => ReadoutMap::Resistance,
+            ReadoutKind::Divider => ReadoutMap::Divider {
+                max: r.max_code(),
+                r_ref: r.r_ref_ohm,
+            },
+        }
+    }
+
+    pub fn kind(&self) -> ReadoutKind {
+        match self {
+            ReadoutMap::Amplifier { .. } => ReadoutKind::Amplifier,
+            ReadoutMap::Resistance => ReadoutKind::Resistance,
+            ReadoutMap::Divider { .. } => ReadoutKind::Divider,
+        }
+    }
+
+    /// Conductance (S) of a reading.
+    pub fn to_g(&self, y: f64) -> f64 {
+        match *self {
+            ReadoutMap::Amplifier { scale, rg, .. } => ((y / scale - 1.0) / rg).max(1e-12),
+            ReadoutMap::Resistance => 1.0 / y.max(0.5),
+            ReadoutMap::Divider { max, r_ref } => ((max / y.max(0.5) - 1.0) / r_ref).max(1e-12),
+        }
+    }
+
+    /// Reading of a conductance (S).
+    pub fn from_g(&self, g: f64) -> f64 {
+        let g = g.max(1e-12);
+        match *self {
+            ReadoutMap::Amplifier { scale, rg, rail } => (scale * (1.0 + rg * g)).min(rail),
+            ReadoutMap::Resistance => 1.0 / g,
+            ReadoutMap::Divider { max, r_ref } => max / (1.0 + r_ref * g),
+        }
+    }
+
+    /// The residual domain of a reading.
+    pub fn dom(&self, y: f64) -> f64 {
+        match self {
+            ReadoutMap::Resistance => y.max(0.5).ln(),
+            _ => y,
+        }
+    }
+
+    /// d(dom)/dG at conductance `g` (for weighting fits done in conductance).
+    pub fn ddom_dg(&self, g: f64) -> f64 {
+        let g = g.max(1e-12);
+        match *self {
+            ReadoutMap::Amplifier { scale, rg, .. } => scale * rg,
+            ReadoutMap::Resistance => 1.0 / g,
+            ReadoutMap::Divider { max, r_ref } => max * r_ref / (1.0 + r_ref * g).powi(2),
+        }
+    }
+
+    /// True when `y` sits on the amplifier's rail (its value then says nothing).
+    pub fn on_rail(&self, y: f64) -> bool {
+        match *self {
+            ReadoutMap::Amplifier { rail, .. } => y >= rail - 0.5,
+            _ => false,
+        }
+    }
+
+    /// Unit of the residual domain, for labels.
+    pub fn dom_unit(&self) -> &'static str {
+        match self {
+            ReadoutMap::Resistance => "ln(ohm)",
+            _ => "ADC counts",
+        }
+    }
+}
+
+/// Why a recording cannot be diagnosed.
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    #[error(transparent)]
+    Csv(#[from] taxel_formats::csv::CsvError),
+    #[error("{path}: {reason}")]
+    Unusable { path: String, reason: String },
+}
+
+/// A recording ready for the diagnosis.
+#[derive(Debug, Clone)]
+pub struct Dataset {
+    pub path: String,
+    pub rows: usize,
+    pub cols: usize,
+    pub n: usize,
+    pub t: Vec<f64>,
+    pub force: Vec<f64>,
+    pub kappa: Option<Vec<f64>>,
+    pub temp: Option<Vec<f64>>,
+    /// Trial index per sample (0-based, dense); all 0 when the recording has none.
+    pub trial: Vec<usize>,
+    pub n_trials: usize,
+    pub trial_recorded: bool,
+    /// Readings, sample-major (`i * n + k`).
+    pub y: Vec<f64>,
+    pub map: ReadoutMap,
+}
+
+impl Dataset {
+    pub fn len(&self) -> usize {
+        self.t.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.t.is_empty()
+    }
+
+    /// Reads and checks a recording. `readout` is the starting model's readout; when the
+    /// readings fall with force and the model's readout rises (or the other way round), the
+    /// readout is switched to a resistance reading (or the amplifier) and the switch is returned.
+    pub fn load(
+        path: &Path,
+        rows: Option<usize>,
+        cols: Option<usize>,
+        readout: &Readout,
+        readout_given: bool,
+    ) -> Result<(Dataset, Option<String>), DataError> {
+        let rec = Recording::read(path)?;
+        let g = rec.geometry(rows, cols)?;
+        Self::from_recording(rec, g.rows, g.cols, readout, readout_given)
+    }
+
+    pub fn from_recording(
+        rec: Recording,
+        rows: usize,
+        cols: usize,
+        readout: &Readout,
+        readout_given: bool,
+    ) -> Result<(Dataset, Option<String>), DataError> {
+        let path = rec.path.display().to_string();
+        let bad = |reason: String| DataError::Unusable {
+            path: path.clone(),
+            reason,
+        };
+        let force = rec.force_n.clone().ok_or_else(|| {
+            bad("no force_n column: the diagnosis re-simulates the recorded force".into())
+        })?;
+        if rec.len() < 50 {
+            return Err(bad(format!(
+                "only {} samples; at least 50 are needed",
+                rec.len()
+            )));
+        }
+        for (i, w) in rec.t_s.windows(2).enumerate() {
+            if w[1] < w[0] {
+                return Err(bad(format!(
+                    "t_s goes backwards at data row {} ({} after {})",
+                    i + 2,
+                    w[1],
+                    w[0]
+                )));
+            }
+        }
+        for (col, v) in [
+            ("force_n", Some(&force)),
+            ("curvature_m1", rec.curvature_m1.as_ref()),
+            ("temp_c", rec.temp_c.as_ref()),
+        ] {
+            if let Some(v) = v {
+                if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+                    return Err(bad(format!("{col} is not finite at data row {}", i + 1)));
+                }
+            }
+        }
+        if let Some(i) = rec.nodes.iter().position(|x| !x.is_finite() || *x < 0.0) {
+            return Err(bad(format!(
+                "reading n{} at data row {} is negative or not finite",
+                i % rec.n_nodes,
+                i / rec.n_nodes + 1
+            )));
+        }
+        let fmax = force.iter().cloned().fold(0.0, f64::max);
+        if fmax <= 0.0 {
+            return Err(bad(
+                "force_n is never above 0: nothing to fit a force law to".into(),
+            ));
+        }
+        let (trial, n_trials) = match &rec.trial {
+            Some(tr) => {
+                let mut ids: Vec<i64> = tr.clone();
+                ids.sort_unstable();
+                ids.dedup();
+                let idx = tr
+                    .iter()
+                    .map(|v| ids.binary_search(v).unwrap_or(0))
+                    .collect();
+                (idx, ids.len())
+            }
+            None => (vec![0; rec.len()], 1),
+        };
+        // Does the reading rise or fall with force? Compare the mean of the summed reading at
+        // the top and bottom force quartiles.
+        let n = rec.n_nodes;
+        let sums: Vec<f64> = (0..rec.len()).map(|i| rec.sample(i).iter().sum()).collect();
+        let mut order: Vec<usize> = (0..rec.len()).collect();
+        order.sort_by(|&a, &b| force[a].total_cmp(&force[b]));
+        let q = (rec.len() / 4).max(1);
+        let low: f64 = order[..q].iter().map(|&i| sums[i]).sum::<f64>() / q as f64;
+        let high: f64 = order[rec.len() - q..].iter().map(|&i| sums[i]).sum::<f64>() / q as f64;
+        let rising = high >= low;
+        let mut r = readout.clone();
+        let mut note = None;
+        let model_rising = r.kind == ReadoutKind::Amplifier;
+        if rising != model_rising {
+            if readout_given {
+                note = Some(format!(
+                    "the readings {} with force but the model's readout ({:?}) {}; kept as given",
+                    if rising { "rise" } else { "fall" },
+                    r.kind,
+                    if model_rising { "rises" } else { "falls" }
+                ));
+            } else {
+                r.kind = if rising {
+                    ReadoutKind::Amplifier
+                } else {
+                    ReadoutKind::Resistance
+                };
+                note = Some(format!(
+                    "the readings {} with force: readout set to {:?}",
+                    if rising { "rise" } else { "fall" },
+                    r.kind
+                ));
+            }
+        }
+        let map = ReadoutMap::from_readout(&r);
+        Ok((
+            Dataset {
+                path,
+                rows,
+                cols,
+                n,
+                t: rec.t_s,
+                force,
+                kappa: rec.curvature_m1,
+                temp: rec.temp_c,
+                trial,
+                n_trials,
+                trial_recorded: rec.trial.is_some(),
+                y: rec.nodes,
+                map,
+            },
+            note,
+        ))
+    }
+
+    /// Median time step (s).
+    pub fn dt(&self) -> f64 {
+        let mut d: Vec<f64> = self.t.windows(2).map(|w| w[1] - w[0]).collect();
+        if d.is_empty() {
+            return 0.01;
+        }
+        d.sort_by(f64::total_cmp);
+        d[d.len() / 2].max(1e-6)
+    }
+
+    pub fn duration(&self) -> f64 {
+        self.t.last().copied().unwrap_or(0.0) - self.t.first().copied().unwrap_or(0.0)
+    }
+
+    pub fn max_force(&self) -> f64 {
+        self.force.iter().cloned().fold(0.0, f64::max)
+    }
+}

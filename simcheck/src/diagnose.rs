@@ -1,0 +1,449 @@
+//! The diagnosis: fit the base model, test every applicable effect of the library on held-out
+//! blocks, add the best accepted one and repeat, then drop any effect the others made
+//! unnecessary; finally check what structure is left and say where it is.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use serde::Serialize;
+use taxel_sim::SensorModel;
+
+use crate::data::Dataset;
+use crate::locate::{locate, node_stats, spans, Findings};
+use crate::model::{evaluate, Config, Context, EffectKind, Thermal};
+use crate::search::{
+    all_params, applicable, base_params, candidate, compare, cross_validate, fit_all, n_params,
+    tau_int, Cv, Verdict,
+};
+
+/// Search effort.
+#[derive(Debug, Clone, Copy)]
+pub struct Options {
+    /// Nelder-Mead evaluations per fit.
+    pub max_evals: usize,
+    /// Most effects named.
+    pub max_effects: usize,
+    /// Residual-to-noise ratio above which structure counts as unexplained.
+    pub unexplained_ratio: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            max_evals: 60,
+            max_effects: 4,
+            unexplained_ratio: 3.0,
+        }
+    }
+}
+
+/// One test of a candidate effect (every round, accepted or not).
+#[derive(Debug, Clone, Serialize)]
+pub struct Trial {
+    pub round: usize,
+    pub effect: String,
+    pub verdict: Verdict,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct NamedEffect {
+    pub name: String,
+    pub params: BTreeMap<String, f64>,
+    pub evidence: String,
+    pub heldout_rmse_before: f64,
+    pub heldout_rmse_after: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Unexplained {
+    pub nodes: Vec<usize>,
+    pub t_s: [f64; 2],
+    pub description: String,
+}
+
+/// Everything the diagnosis found (report.json is this, plus file names).
+pub struct Diagnosis {
+    pub verdict: &'static str,
+    pub effects: Vec<NamedEffect>,
+    pub unexplained: Vec<Unexplained>,
+    pub rmse_base: f64,
+    pub rmse_final: f64,
+    pub base: Config,
+    pub final_cfg: Config,
+    pub trials: Vec<Trial>,
+    pub skipped: Vec<(String, String)>,
+    pub base_findings: Findings,
+    pub final_findings: Findings,
+    pub base_cv: Cv,
+    pub final_cv: Cv,
+    /// Whole-data predictions (residual domain) of the base and final models.
+    pub base_pred: Vec<f64>,
+    pub final_pred: Vec<f64>,
+    pub final_theta: Vec<Vec<f64>>,
+    pub latent_m: Option<Vec<f64>>,
+    pub seconds: f64,
+}
+
+fn effect_params(
+    ds: &Dataset,
+    cfg: &Config,
+    e: EffectKind,
+    theta: &[Vec<f64>],
+) -> BTreeMap<String, f64> {
+    let mut p = BTreeMap::new();
+    match e {
+        EffectKind::Creep => {
+            if let Some((c, tau)) = cfg.creep {
+                p.insert("amplitude".into(), c);
+                p.insert("tau_s".into(), tau);
+            }
+        }
+        EffectKind::Hysteresis => {
+            if let Some((w, r)) = cfg.hysteresis {
+                p.insert("weight".into(), w);
+                p.insert("threshold_n".into(), r);
+            }
+        }
+        EffectKind::ThermalDrift => match &cfg.thermal {
+            Some(Thermal::Recorded { alpha_per_k, tau_s }) => {
+                p.insert("alpha_per_k".into(), *alpha_per_k);
+                p.insert("tau_s".into(), *tau_s);
+            }
+            Some(Thermal::Latent { values, knots_s }) => {
+                let lo = values.iter().cloned().fold(f64::INFINITY, f64::min);
+                let hi = values.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+                p.insert("latent_knots".into(), knots_s.len() as f64);
+                p.insert("factor_min".into(), lo);
+                p.insert("factor_max".into(), hi);
+            }
+            None => {}
+        },
+        EffectKind::CurvatureSensitivity => {
+            if let Some(v) = cfg.curv_sens {
+                if ds.kappa.is_some() {
+                    p.insert("kappa_s_m1".into(), v);
+                } else {
+                    p.insert("beta_per_log_baseline_shift".into(), v);
+                }
+            }
+        }
+        EffectKind::CurvatureBaseline => {
+            if ds.kappa.is_some() {
+                let slopes: Vec<f64> = theta
+                    .iter()
+                    .filter(|t| t.len() >= 3 && t[0].abs() > 0.0)
+                    .map(|t| t[1] / t[0])
+                    .collect();
+                let mean = slopes.iter().sum::<f64>() / slopes.len().max(1) as f64;
+                p.insert("mean_g1_m".into(), mean);
+            } else {
+                p.insert("trials".into(), ds.n_trials as f64);
+            }
+        }
+        EffectKind::Saturation => {
+            p.insert("r_floor_ohm".into(), cfg.r_floor_ohm);
+        }
+        EffectKind::Crosstalk => {
+            if let Some(v) = cfg.crosstalk {
+                p.insert("rs_ohm".into(), v);
+            }
+        }
+        EffectKind::ScanSkew => {
+            if let Some(v) = cfg.scan_skew {
+                p.insert("dt_node_s".into(), v);
+            }
+        }
+    }
+    p
+}
+
+/// The locating regressor(s) that speak for an effect.
+pub fn signature(e: EffectKind) -> &'static [&'static str] {
+    match e {
+        EffectKind::Creep => &[
+            "time under load: low-pass(F, 3 s) - F",
+            "time under load: low-pass(F, 30 s) - F",
+        ],
+        EffectKind::Hysteresis => &["loading direction x level"],
+        EffectKind::ScanSkew => &["scan index x dF/dt"],
+        EffectKind::ThermalDrift => &["temperature", "time (slow drift, all nodes)"],
+        EffectKind::CurvatureSensitivity => &["curvature x force"],
+        EffectKind::CurvatureBaseline => &["curvature (no-load offset)"],
+        EffectKind::Crosstalk => &["same-row load (crosstalk)"],
+        EffectKind::Saturation => &["force level (node-weighted)"],
+    }
+}
+
+fn evidence(e: EffectKind, v: &Verdict, f: &Findings) -> String {
+    let mut s = format!(
+        "held-out SSE -{:.1} % (RMSE {:.4} -> {:.4}), better in {:.0} % of blocks, block t = {:.1}, information gain {:.0}",
+        100.0 * v.rel_gain,
+        v.rmse_before,
+        v.rmse_after,
+        100.0 * v.blocks_improved,
+        v.block_t,
+        v.ic_gain
+    );
+    for name in signature(e) {
+        if let Some(c) = f.correlations.iter().find(|c| c.regressor == *name) {
+            s.push_str(&format!(
+                "; base residual vs {}: r = {:.2} [{:.2}, {:.2}]",
+                c.regressor, c.r, c.ci95[0], c.ci95[1]
+            ));
+        }
+    }
+    if e == EffectKind::CurvatureBaseline || e == EffectKind::CurvatureSensitivity {
+        for sp in &f.splits {
+            if sp.by.starts_with("trial") {
+                let lo = sp
+                    .groups
+                    .iter()
+                    .map(|g| g.mean)
+                    .fold(f64::INFINITY, f64::min);
+                let hi = sp
+                    .groups
+                    .iter()
+                    .map(|g| g.mean)
+                    .fold(f64::NEG_INFINITY, f64::max);
+                s.push_str(&format!(
+                    "; base residual by {}: {:.3} to {:.3}",
+                    sp.by, lo, hi
+                ));
+            }
+        }
+    }
+    if e == EffectKind::Hysteresis {
+        if let Some(sp) = f
+            .splits
+            .iter()
+            .find(|s| s.by.starts_with("loading direction"))
+        {
+            if sp.groups.len() == 2 {
+                s.push_str(&format!(
+                    "; base residual loading {:.3} +- {:.3} vs unloading {:.3} +- {:.3}",
+                    sp.groups[0].mean,
+                    sp.groups[0].ci95_half,
+                    sp.groups[1].mean,
+                    sp.groups[1].ci95_half
+                ));
+            }
+        }
+    }
+    s
+}
+
+pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis {
+    let t0 = Instant::now();
+    let ctx = Context::new(ds);
+    let ev_n = opts.max_evals;
+    let cfg0 = Config::base(start.material.exponent, start.material.r_floor_ohm);
+    let bp = base_params(&cfg0);
+    let base_cv = cross_validate(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
+    let tau = tau_int(&base_cv.resid, ds.len(), ds.n);
+    let base = fit_all(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
+    let base_eval = evaluate(&ctx, &base, &|_| true);
+    let base_findings = locate(&ctx, &base_cv.resid, &base_eval.pred);
+    let mut cur = base.clone();
+    let mut cur_cv = base_cv.clone();
+    let mut trials = Vec::new();
+    let mut skipped = Vec::new();
+    for e in EffectKind::ALL {
+        if let Err(why) = applicable(&ctx, &cur, e) {
+            skipped.push((e.name().to_string(), why.to_string()));
+        }
+    }
+    for round in 1..=opts.max_effects {
+        let mut best: Option<(
+            EffectKind,
+            Cv,
+            Verdict,
+            Vec<Config>,
+            Vec<crate::search::Param>,
+        )> = None;
+        for e in EffectKind::ALL {
+            if cur.has(e) || applicable(&ctx, &cur, e).is_err() {
+                continue;
+            }
+            let (starts, params) = candidate(&ctx, &cur, e);
+            let cv = cross_validate(&ctx, &starts, &params, ev_n);
+            let v = compare(&cur_cv, &cv, n_params(&ctx, e), tau);
+            trials.push(Trial {
+                round,
+                effect: e.name().to_string(),
+                verdict: v,
+            });
+            if v.accepted && best.as_ref().is_none_or(|b| v.ic_gain > b.2.ic_gain) {
+                best = Some((e, cv, v, starts, params));
+            }
+        }
+        let Some((_, cv, _, starts, params)) = best else {
+            break;
+        };
+        let added = fit_all(&ctx, &starts, &params, ev_n);
+        cur = fit_all(
+            &ctx,
+            std::slice::from_ref(&added),
+            &all_params(&added),
+            ev_n * 2,
+        );
+        cur_cv = cv;
+    }
+    // Backward pass: drop an effect the others made unnecessary.
+    let mut contributions: BTreeMap<EffectKind, (Cv, Verdict)> = BTreeMap::new();
+    loop {
+        contributions.clear();
+        let effects = cur.effects();
+        let mut dropped = false;
+        for &e in &effects {
+            let minus = cur.without(e);
+            let cv_minus = cross_validate(
+                &ctx,
+                std::slice::from_ref(&minus),
+                &base_params(&minus),
+                ev_n,
+            );
+            let v = compare(&cv_minus, &cur_cv, n_params(&ctx, e), tau);
+            if !v.accepted && effects.len() >= 2 {
+                cur = fit_all(
+                    &ctx,
+                    std::slice::from_ref(&minus),
+                    &all_params(&minus),
+                    ev_n * 2,
+                );
+                cur_cv = cv_minus;
+                dropped = true;
+                break;
+            }
+            contributions.insert(e, (cv_minus, v));
+        }
+        if !dropped {
+            break;
+        }
+    }
+    let final_eval = evaluate(&ctx, &cur, &|_| true);
+    let final_findings = locate(&ctx, &cur_cv.resid, &final_eval.pred);
+    let effects: Vec<NamedEffect> = cur
+        .effects()
+        .into_iter()
+        .map(|e| {
+            let (rb, ra, ev) = match contributions.get(&e) {
+                Some((cvm, v)) => (cvm.rmse(), cur_cv.rmse(), evidence(e, v, &base_findings)),
+                None => (base_cv.rmse(), cur_cv.rmse(), String::new()),
+            };
+            NamedEffect {
+                name: e.name().to_string(),
+                params: effect_params(ds, &cur, e, &final_eval.theta),
+                evidence: ev,
+                heldout_rmse_before: rb,
+                heldout_rmse_after: ra,
+            }
+        })
+        .collect();
+    let unexplained = find_unexplained(&ctx, &cur_cv, &final_findings, opts.unexplained_ratio);
+    let verdict = if !unexplained.is_empty() {
+        "unexplained"
+    } else if effects.is_empty() {
+        "none"
+    } else {
+        "explained"
+    };
+    Diagnosis {
+        verdict,
+        effects,
+        unexplained,
+        rmse_base: base_cv.rmse(),
+        rmse_final: cur_cv.rmse(),
+        base,
+        final_cfg: cur,
+        trials,
+        skipped,
+        base_findings,
+        final_findings,
+        base_cv,
+        final_cv: cur_cv,
+        base_pred: base_eval.pred,
+        final_pred: final_eval.pred,
+        final_theta: final_eval.theta,
+        latent_m: match &final_eval.latent {
+            Some(_) => Some(final_eval.m.clone()),
+            None => None,
+        },
+        seconds: t0.elapsed().as_secs_f64(),
+    }
+}
+
+/// Structure left after the final model: nodes whose held-out residual stands far above their
+/// own noise floor and above the other nodes, or the whole array when every node does.
+fn find_unexplained(ctx: &Context, cv: &Cv, f: &Findings, limit: f64) -> Vec<Unexplained> {
+    let ds = ctx.ds;
+    let stats = node_stats(ctx, &cv.resid);
+    let mut ratios: Vec<f64> = stats.iter().map(|s| s.ratio).collect();
+    ratios.sort_by(f64::total_cmp);
+    let median = ratios[ratios.len() / 2];
+    let mut out = Vec::new();
+    let strongest = f
+        .correlations
+        .iter()
+        .filter(|c| c.significant)
+        .max_by(|a, b| a.r.abs().total_cmp(&b.r.abs()));
+    let corr_text = strongest.map_or(
+        "no named regressor correlates significantly".to_string(),
+        |c| {
+            format!(
+                "strongest named correlate: {} (r = {:.2})",
+                c.regressor, c.r
+            )
+        },
+    );
+    if ds.n >= 3 {
+        let bad: Vec<usize> = stats
+            .iter()
+            .filter(|s| s.ratio > limit && s.ratio > 2.5 * median.max(1.0))
+            .map(|s| s.node)
+            .collect();
+        for &k in &bad {
+            let sp = spans(ctx, &cv.resid, &[k], 3.0);
+            let (t0, t1) = sp
+                .first()
+                .map_or((ds.t[0], ds.t[ds.len() - 1]), |s| (s.t_s[0], s.t_s[1]));
+            let first = sp.iter().map(|s| s.t_s[0]).fold(f64::INFINITY, f64::min);
+            let last = sp
+                .iter()
+                .map(|s| s.t_s[1])
+                .fold(f64::NEG_INFINITY, f64::max);
+            out.push(Unexplained {
+                nodes: vec![k],
+                t_s: if sp.is_empty() { [t0, t1] } else { [first, last] },
+                description: format!(
+                    "node {k} (row {}, col {}): held-out residual {:.1}x its noise floor vs median {:.1}x over nodes, in {} span(s) (worst {:.1}-{:.1} s); no library effect explains it",
+                    k / ds.cols,
+                    k % ds.cols,
+                    stats[k].ratio,
+                    median,
+                    sp.len(),
+                    t0,
+                    t1
+                ),
+            });
+        }
+        if !bad.is_empty() {
+            return out;
+        }
+    }
+    if median > limit {
+        let all: Vec<usize> = (0..ds.n).collect();
+        let sp = spans(ctx, &cv.resid, &all, 2.0);
+        let (t0, t1) = sp
+            .first()
+            .map_or((ds.t[0], ds.t[ds.len() - 1]), |s| (s.t_s[0], s.t_s[1]));
+        out.push(Unexplained {
+            nodes: all,
+            t_s: [t0, t1],
+            description: format!(
+                "structured residual on every node: held-out RMSE {:.1}x the noise floor (median over nodes), residual memory {:.0} samples; worst span {:.1}-{:.1} s; {}",
+                median, f.tau_int_samples, t0, t1, corr_text
+            ),
+        });
+    }
+    out
+}

@@ -1,0 +1,664 @@
+//! The diagnosis's forward model: the simulator's physics, written so that every per-node
+//! parameter is fitted by weighted linear least squares inside each evaluation and only a few
+//! global parameters (force-law exponent, resistance floor, and each effect's own) are searched.
+//!
+//! Per node `k` and sample `i`: load `L = F` (shifted in time by scan skew, passed through the
+//! hysteresis play operator and the creep low-pass), `p = L^n`; conductance
+//! `G = m_i (b_k + [c_k kappa_i] + a_k s_i p)` with the thermal factor `m`, the curvature
+//! sensitivity `s` and the curvature baseline term; then the resistance floor `G / (1 + r G)`,
+//! the row crosstalk `G (1 - Rs sum_row G)`, and the readout.
+
+use crate::data::Dataset;
+
+/// The effects the tool can name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum EffectKind {
+    CurvatureBaseline,
+    CurvatureSensitivity,
+    Saturation,
+    Creep,
+    Hysteresis,
+    ThermalDrift,
+    Crosstalk,
+    ScanSkew,
+}
+
+impl EffectKind {
+    pub const ALL: [EffectKind; 8] = [
+        EffectKind::CurvatureBaseline,
+        EffectKind::CurvatureSensitivity,
+        EffectKind::Saturation,
+        EffectKind::Creep,
+        EffectKind::Hysteresis,
+        EffectKind::ThermalDrift,
+        EffectKind::Crosstalk,
+        EffectKind::ScanSkew,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            EffectKind::CurvatureBaseline => "curvature_baseline",
+            EffectKind::CurvatureSensitivity => "curvature_sensitivity",
+            EffectKind::Saturation => "saturation",
+            EffectKind::Creep => "creep",
+            EffectKind::Hysteresis => "hysteresis",
+            EffectKind::ThermalDrift => "thermal_drift",
+            EffectKind::Crosstalk => "crosstalk",
+            EffectKind::ScanSkew => "scan_skew",
+        }
+    }
+}
+
+/// Thermal drift: from the recorded temperature, or a latent common-mode factor when the
+/// recording has no temperature column.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Thermal {
+    /// `m = 1 + alpha (T_s - t0)`, `T_s` the temperature low-passed with `tau_s`.
+    Recorded { alpha_per_k: f64, tau_s: f64 },
+    /// `m(t)` piecewise linear through `values` at `knots_s`, fitted with the nodes.
+    Latent { knots_s: Vec<f64>, values: Vec<f64> },
+}
+
+/// Global parameters of the forward model; `None` = effect absent.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Config {
+    pub exponent: f64,
+    /// Resistance floor (ohm); used when `sat_in_base` or the saturation effect is on.
+    pub r_floor_ohm: f64,
+    pub sat_in_base: bool,
+    pub saturation: bool,
+    /// Creep `(c, tau_s)`: `L + c lowpass_tau(L)`.
+    pub creep: Option<(f64, f64)>,
+    /// Hysteresis `(w, r_n)`: `(1 - w) L + w play_r(L)`.
+    pub hysteresis: Option<(f64, f64)>,
+    pub thermal: Option<Thermal>,
+    /// Curvature sensitivity: `kappa_s` (1/m) with a curvature column, else `beta` (per unit
+    /// log-baseline shift of the trial).
+    pub curv_sens: Option<f64>,
+    pub curv_base: bool,
+    /// Row crosstalk: switch + thread resistance (ohm).
+    pub crosstalk: Option<f64>,
+    /// Scan skew: time between two node samples (s).
+    pub scan_skew: Option<f64>,
+}
+
+impl Config {
+    pub fn base(exponent: f64, r_floor_ohm: f64) -> Config {
+        Config {
+            exponent,
+            r_floor_ohm,
+            sat_in_base: r_floor_ohm > 0.0,
+            saturation: false,
+            creep: None,
+            hysteresis: None,
+            thermal: None,
+            curv_sens: None,
+            curv_base: false,
+            crosstalk: None,
+            scan_skew: None,
+        }
+    }
+
+    pub fn has(&self, e: EffectKind) -> bool {
+        match e {
+            EffectKind::CurvatureBaseline => self.curv_base,
+            EffectKind::CurvatureSensitivity => self.curv_sens.is_some(),
+            EffectKind::Saturation => self.saturation,
+            EffectKind::Creep => self.creep.is_some(),
+            EffectKind::Hysteresis => self.hysteresis.is_some(),
+            EffectKind::ThermalDrift => self.thermal.is_some(),
+            EffectKind::Crosstalk => self.crosstalk.is_some(),
+            EffectKind::ScanSkew => self.scan_skew.is_some(),
+        }
+    }
+
+    pub fn without(&self, e: EffectKind) -> Config {
+        let mut c = self.clone();
+        match e {
+            EffectKind::CurvatureBaseline => c.curv_base = false,
+            EffectKind::CurvatureSensitivity => c.curv_sens = None,
+            EffectKind::Saturation => {
+                c.saturation = false;
+                if !c.sat_in_base {
+                    c.r_floor_ohm = 0.0;
+                }
+            }
+            EffectKind::Creep => c.creep = None,
+            EffectKind::Hysteresis => c.hysteresis = None,
+            EffectKind::ThermalDrift => c.thermal = None,
+            EffectKind::Crosstalk => c.crosstalk = None,
+            EffectKind::ScanSkew => c.scan_skew = None,
+        }
+        c
+    }
+
+    pub fn effects(&self) -> Vec<EffectKind> {
+        EffectKind::ALL
+            .iter()
+            .copied()
+            .filter(|e| self.has(*e))
+            .collect()
+    }
+
+    fn floor(&self) -> f64 {
+        if self.sat_in_base || self.saturation {
+            self.r_floor_ohm.max(0.0)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Precomputed views of a dataset shared by every evaluation.
+pub struct Context<'a> {
+    pub ds: &'a Dataset,
+    /// Observed conductance (S), sample-major.
+    pub g_obs: Vec<f64>,
+    /// Observed reading in the residual domain.
+    pub dom_obs: Vec<f64>,
+    /// Observation usable (not on the rail).
+    pub usable: Vec<bool>,
+    /// Per-trial common log-shift of the no-load conductance against the whole recording.
+    pub trial_shift: Vec<f64>,
+    /// Cross-validation block of each sample and its fold (0 or 1).
+    pub block: Vec<usize>,
+    pub n_blocks: usize,
+}
+
+impl<'a> Context<'a> {
+    pub fn new(ds: &'a Dataset) -> Context<'a> {
+        let n = ds.n;
+        let g_obs: Vec<f64> = ds.y.iter().map(|&y| ds.map.to_g(y)).collect();
+        let dom_obs = ds.y.iter().map(|&y| ds.map.dom(y)).collect();
+        let usable = ds.y.iter().map(|&y| !ds.map.on_rail(y)).collect();
+        // Rest samples: force below 2 % of the peak.
+        let fmax = ds.max_force();
+        let rest: Vec<bool> = ds.force.iter().map(|&f| f <= 0.02 * fmax).collect();
+        let mut overall = vec![Vec::new(); n];
+        let mut per_trial = vec![vec![Vec::new(); n]; ds.n_trials];
+        for i in 0..ds.len() {
+            if rest[i] {
+                for k in 0..n {
+                    let g = g_obs[i * n + k].max(1e-12).ln();
+                    overall[k].push(g);
+                    per_trial[ds.trial[i]][k].push(g);
+                }
+            }
+        }
+        let med = |v: &mut Vec<f64>| -> Option<f64> {
+            if v.is_empty() {
+                return None;
+            }
+            v.sort_by(f64::total_cmp);
+            Some(v[v.len() / 2])
+        };
+        let overall: Vec<Option<f64>> = overall.iter_mut().map(med).collect();
+        let trial_shift = per_trial
+            .iter_mut()
+            .map(|nodes| {
+                let mut d: Vec<f64> = nodes
+                    .iter_mut()
+                    .zip(&overall)
+                    .filter_map(|(v, o)| Some(med(v)? - (*o)?))
+                    .collect();
+                med(&mut d).unwrap_or(0.0)
+            })
+            .collect();
+        let (block, n_blocks) = blocks(ds);
+        Context {
+            ds,
+            g_obs,
+            dom_obs,
+            usable,
+            trial_shift,
+            block,
+            n_blocks,
+        }
+    }
+
+    /// Every how many samples the parameter search looks (about 50 per second).
+    pub fn search_stride(&self) -> usize {
+        ((1.0 / self.ds.dt() / 50.0).round() as usize).max(1)
+    }
+
+    pub fn fold(&self, i: usize) -> usize {
+        self.block[i] % 2
+    }
+}
+
+/// Contiguous time blocks, cut at trial changes too, about 1/24 of the recording each (at
+/// least 2 s and 20 samples); consecutive blocks alternate between the two folds.
+fn blocks(ds: &Dataset) -> (Vec<usize>, usize) {
+    let len = ds.len();
+    let target = (ds.duration() / 24.0).max(2.0);
+    let mut block = vec![0usize; len];
+    let mut b = 0usize;
+    let mut start_t = ds.t[0];
+    let mut start_i = 0usize;
+    for i in 0..len {
+        let new_trial = i > 0 && ds.trial[i] != ds.trial[i - 1];
+        if i > start_i && (new_trial || (ds.t[i] - start_t >= target && i - start_i >= 20)) {
+            b += 1;
+            start_t = ds.t[i];
+            start_i = i;
+        }
+        block[i] = b;
+    }
+    (block, b + 1)
+}
+
+/// Result of one evaluation.
+pub struct Eval {
+    /// Predicted reading in the residual domain, sample-major.
+    pub pred: Vec<f64>,
+    /// Per-node linear parameters: intercept(s), [curvature slope], gain.
+    pub theta: Vec<Vec<f64>>,
+    /// Thermal factor per sample (1 without thermal drift).
+    pub m: Vec<f64>,
+    /// The latent thermal values at the knots after fitting (if latent).
+    pub latent: Option<Vec<f64>>,
+    /// Training SSE (only when predictions were not requested).
+    pub train_sse: f64,
+}
+
+/// The load transform: hysteresis (play operator), then creep, then the power law.
+pub fn load_series(f: impl Iterator<Item = f64>, dt: &[f64], cfg: &Config, out: &mut Vec<f64>) {
+    out.clear();
+    let mut z: Option<f64> = None;
+    let mut s: Option<f64> = None;
+    for (i, fi) in f.enumerate() {
+        let mut l = fi.max(0.0);
+        if let Some((w, r)) = cfg.hysteresis {
+            let zz = z.map_or(l, |z| z.clamp(l - r, l + r));
+            z = Some(zz);
+            l = (1.0 - w) * l + w * zz;
+        }
+        if let Some((c, tau)) = cfg.creep {
+            let beta = 1.0 - (-dt[i] / tau).exp();
+            let ss = s.map_or(0.0, |s| s + (l - s) * beta);
+            s = Some(ss);
+            l += c * ss;
+        }
+        out.push(l.max(0.0).powf(cfg.exponent));
+    }
+}
+
+/// `f` sampled at `t + shift` for every `t` (linear interpolation, held at the ends).
+fn shifted(t: &[f64], f: &[f64], shift: f64) -> Vec<f64> {
+    let mut out = Vec::with_capacity(t.len());
+    let mut j = 0usize;
+    for &ti in t {
+        let x = ti + shift;
+        while j + 1 < t.len() && t[j + 1] <= x {
+            j += 1;
+        }
+        if j + 1 >= t.len() || x <= t[0] {
+            out.push(if x <= t[0] { f[0] } else { f[t.len() - 1] });
+            continue;
+        }
+        let (t0, t1) = (t[j], t[j + 1]);
+        let w = if t1 > t0 {
+            ((x - t0) / (t1 - t0)).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        out.push(f[j] * (1.0 - w) + f[j + 1] * w);
+    }
+    out
+}
+
+#[allow(dead_code)]
+fn interp(t: &[f64], f: &[f64], x: f64) -> f64 {
+    if x <= t[0] {
+        return f[0];
+    }
+    let last = t.len() - 1;
+    if x >= t[last] {
+        return f[last];
+    }
+    let j = t.partition_point(|&v| v <= x).max(1);
+    let (t0, t1) = (t[j - 1], t[j]);
+    let w = if t1 > t0 { (x - t0) / (t1 - t0) } else { 0.0 };
+    f[j - 1] * (1.0 - w) + f[j] * w
+}
+
+fn lowpass(x: &[f64], dt: &[f64], tau: f64) -> Vec<f64> {
+    let mut out = Vec::with_capacity(x.len());
+    let mut s = x.first().copied().unwrap_or(0.0);
+    for (i, &v) in x.iter().enumerate() {
+        s += (v - s) * (1.0 - (-dt[i] / tau).exp());
+        out.push(s);
+    }
+    out
+}
+
+/// Piecewise-linear interpolation weights of time `t` on `knots`.
+fn hat(knots: &[f64], t: f64) -> (usize, f64) {
+    if knots.len() < 2 || t <= knots[0] {
+        return (0, 0.0);
+    }
+    let last = knots.len() - 1;
+    if t >= knots[last] {
+        return (last - 1, 1.0);
+    }
+    let j = knots.partition_point(|&v| v <= t).max(1);
+    (j - 1, (t - knots[j - 1]) / (knots[j] - knots[j - 1]))
+}
+
+/// Latent thermal knots for a recording: about one per 60 s (at least 4, at most 24).
+pub fn latent_knots(ds: &Dataset) -> Vec<f64> {
+    let k = ((ds.duration() / 60.0).round() as usize + 1).clamp(4, 24);
+    let t0 = ds.t[0];
+    let span = ds.duration().max(1e-9);
+    (0..k)
+        .map(|j| t0 + span * j as f64 / (k - 1) as f64)
+        .collect()
+}
+
+/// Solves the symmetric positive (semi)definite system `a x = b` (a is p x p, row-major) with a
+/// small ridge; returns zeros when it fails.
+pub fn solve_spd(a: &[f64], b: &[f64], p: usize) -> Vec<f64> {
+    let tr: f64 = (0..p).map(|i| a[i * p + i]).sum::<f64>() / p.max(1) as f64;
+    let lam = 1e-10 * tr.max(1e-300);
+    let mut l = vec![0.0; p * p];
+    for i in 0..p {
+        for j in 0..=i {
+            let mut s = a[i * p + j] + if i == j { lam } else { 0.0 };
+            for k in 0..j {
+                s -= l[i * p + k] * l[j * p + k];
+            }
+            if i == j {
+                if s <= 0.0 || !s.is_finite() {
+                    // Not identified (e.g. a trial with no training sample): ridge it harder.
+                    s = lam.max(1e-300) * 1e6 + 1e-300;
+                }
+                l[i * p + i] = s.sqrt();
+            } else {
+                l[i * p + j] = s / l[j * p + j];
+            }
+        }
+    }
+    let mut y = vec![0.0; p];
+    for i in 0..p {
+        let mut s = b[i];
+        for k in 0..i {
+            s -= l[i * p + k] * y[k];
+        }
+        y[i] = s / l[i * p + i];
+    }
+    let mut x = vec![0.0; p];
+    for i in (0..p).rev() {
+        let mut s = y[i];
+        for k in i + 1..p {
+            s -= l[k * p + i] * x[k];
+        }
+        x[i] = s / l[i * p + i];
+    }
+    if x.iter().all(|v| v.is_finite()) {
+        x
+    } else {
+        vec![0.0; p]
+    }
+}
+
+/// Evaluates `cfg`: fits the per-node linear parameters on the samples where `train(i)` is
+/// true and predicts every sample.
+pub fn evaluate(ctx: &Context, cfg: &Config, train: &dyn Fn(usize) -> bool) -> Eval {
+    evaluate_with(ctx, cfg, train, 1, true)
+}
+
+/// As [`evaluate`], fitting on every `stride`-th training sample; with `want_pred` false only
+/// the training SSE over those samples is computed (`Eval::train_sse`; `pred` stays empty).
+pub fn evaluate_with(
+    ctx: &Context,
+    cfg: &Config,
+    train: &dyn Fn(usize) -> bool,
+    stride: usize,
+    want_pred: bool,
+) -> Eval {
+    let stride = stride.max(1);
+    let ds = ctx.ds;
+    let (len, n) = (ds.len(), ds.n);
+    let mut dt: Vec<f64> = Vec::with_capacity(len);
+    dt.push(ds.dt());
+    dt.extend(ds.t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
+    // Loads: one series for all nodes, or one per node with scan skew.
+    let mut p_common = Vec::new();
+    let mut p_node: Vec<Vec<f64>> = Vec::new();
+    match cfg.scan_skew {
+        Some(skew) if skew != 0.0 => {
+            for k in 0..n {
+                let mut v = Vec::new();
+                let shift = skew * k as f64;
+                let fk = shifted(&ds.t, &ds.force, shift);
+                load_series(fk.into_iter(), &dt, cfg, &mut v);
+                p_node.push(v);
+            }
+        }
+        _ => load_series(ds.force.iter().copied(), &dt, cfg, &mut p_common),
+    }
+    let p_at = |k: usize, i: usize| -> f64 {
+        if p_node.is_empty() {
+            p_common[i]
+        } else {
+            p_node[k][i]
+        }
+    };
+    // Curvature sensitivity per sample.
+    let sens: Vec<f64> = match (cfg.curv_sens, &ds.kappa) {
+        (Some(ks), Some(kappa)) => kappa
+            .iter()
+            .map(|&k| 1.0 / (1.0 + k.max(0.0) / ks.max(1e-6)))
+            .collect(),
+        (Some(beta), None) => ds
+            .trial
+            .iter()
+            .map(|&j| 1.0 / (1.0 + beta * ctx.trial_shift[j]).max(0.05))
+            .collect(),
+        _ => vec![1.0; len],
+    };
+    // Thermal factor.
+    let mut m = vec![1.0; len];
+    let mut latent: Option<(Vec<f64>, Vec<f64>)> = None;
+    match &cfg.thermal {
+        Some(Thermal::Recorded { alpha_per_k, tau_s }) => {
+            if let Some(temp) = &ds.temp {
+                let t0 = temp.iter().sum::<f64>() / len as f64;
+                let ts = lowpass(temp, &dt, *tau_s);
+                for (mi, t) in m.iter_mut().zip(&ts) {
+                    *mi = (1.0 + alpha_per_k * (t - t0)).max(0.05);
+                }
+            }
+        }
+        Some(Thermal::Latent { knots_s, values }) => {
+            latent = Some((knots_s.clone(), values.clone()));
+        }
+        None => {}
+    }
+    let r = cfg.floor();
+    let rs = cfg.crosstalk.unwrap_or(0.0);
+    let (rows, cols) = (ds.rows, ds.cols);
+    // Observed conductance undone through crosstalk and the floor: `g2`, with a weight.
+    let mut g2 = vec![0.0; len * n];
+    let mut wgt = vec![0.0; len * n];
+    for i in 0..len {
+        if !want_pred && i % stride != 0 {
+            continue;
+        }
+        for row in 0..rows {
+            let base = i * n + row * cols;
+            let srow: f64 = if rs > 0.0 {
+                ctx.g_obs[base..base + cols].iter().sum()
+            } else {
+                0.0
+            };
+            let xf = (1.0 - rs * srow).max(0.05);
+            for c in 0..cols {
+                let idx = base + c;
+                let g1 = ctx.g_obs[idx] / xf;
+                let rg = r * g1;
+                if !ctx.usable[idx] || rg >= 0.9 {
+                    continue;
+                }
+                g2[idx] = g1 / (1.0 - rg);
+                let d = ds.map.ddom_dg(ctx.g_obs[idx]) * xf * (1.0 - rg).powi(2);
+                wgt[idx] = d * d;
+            }
+        }
+    }
+    let curv_k = cfg.curv_base && ds.kappa.is_some();
+    let n_int = if cfg.curv_base && ds.kappa.is_none() {
+        ds.n_trials
+    } else {
+        1
+    };
+    let pdim = n_int + usize::from(curv_k) + 1;
+    let mut theta = vec![vec![0.0; pdim]; n];
+    let iterations = if latent.is_some() { 4 } else { 1 };
+    for it in 0..iterations {
+        if let Some((knots, values)) = &latent {
+            for (i, mi) in m.iter_mut().enumerate() {
+                let (j, w) = hat(knots, ds.t[i]);
+                let v = if knots.len() < 2 {
+                    values[0]
+                } else {
+                    values[j] * (1.0 - w) + values[j + 1] * w
+                };
+                *mi = v.max(0.05);
+            }
+        }
+        // Per-node weighted least squares.
+        let mut xrow = vec![0.0; pdim];
+        for (k, th) in theta.iter_mut().enumerate() {
+            let mut a = vec![0.0; pdim * pdim];
+            let mut b = vec![0.0; pdim];
+            for i in (0..len).step_by(stride) {
+                let idx = i * n + k;
+                let w = wgt[idx];
+                if w == 0.0 || !train(i) {
+                    continue;
+                }
+                let mi = m[i];
+                let z = g2[idx] / mi;
+                let w = w * mi * mi;
+                xrow.iter_mut().for_each(|v| *v = 0.0);
+                let it0 = if n_int > 1 { ds.trial[i] } else { 0 };
+                xrow[it0] = 1.0;
+                if curv_k {
+                    xrow[n_int] = ds.kappa.as_ref().map_or(0.0, |kk| kk[i]);
+                }
+                xrow[pdim - 1] = sens[i] * p_at(k, i);
+                for u in 0..pdim {
+                    if xrow[u] == 0.0 {
+                        continue;
+                    }
+                    b[u] += w * xrow[u] * z;
+                    for v in 0..=u {
+                        a[u * pdim + v] += w * xrow[u] * xrow[v];
+                    }
+                }
+            }
+            for u in 0..pdim {
+                for v in u + 1..pdim {
+                    a[u * pdim + v] = a[v * pdim + u];
+                }
+            }
+            *th = solve_spd(&a, &b, pdim);
+        }
+        // Latent thermal: refit the common-mode factor on the knots.
+        if let Some((knots, values)) = &mut latent {
+            if it + 1 == iterations {
+                break;
+            }
+            let kk = knots.len();
+            let mut a = vec![0.0; kk * kk];
+            let mut b = vec![0.0; kk];
+            for i in (0..len).step_by(stride) {
+                if !train(i) {
+                    continue;
+                }
+                let (j, w) = hat(knots, ds.t[i]);
+                for k in 0..n {
+                    let idx = i * n + k;
+                    let wt = wgt[idx];
+                    if wt == 0.0 {
+                        continue;
+                    }
+                    let q = zhat(&theta[k], ds, i, n_int, curv_k, sens[i] * p_at(k, i));
+                    let phi = [(j, (1.0 - w) * q), (j + 1, w * q)];
+                    for &(u, xu) in &phi {
+                        if u >= kk {
+                            continue;
+                        }
+                        b[u] += wt * xu * g2[idx];
+                        for &(v, xv) in &phi {
+                            if v < kk {
+                                a[u * kk + v] += wt * xu * xv;
+                            }
+                        }
+                    }
+                }
+            }
+            // A light pull towards 1 keeps knots without training data at 1.
+            let diag = (0..kk).map(|u| a[u * kk + u]).fold(0.0, f64::max) * 1e-4 + 1e-300;
+            for u in 0..kk {
+                a[u * kk + u] += diag;
+                b[u] += diag;
+            }
+            let mut v = solve_spd(&a, &b, kk);
+            let mean = v.iter().sum::<f64>() / kk as f64;
+            if mean > 0.0 {
+                v.iter_mut().for_each(|x| *x /= mean);
+            }
+            *values = v;
+        }
+    }
+    // Forward prediction (or only the training SSE).
+    let mut pred = if want_pred {
+        vec![0.0; len * n]
+    } else {
+        Vec::new()
+    };
+    let mut train_sse = 0.0;
+    let mut gs = vec![0.0; cols];
+    for i in 0..len {
+        if !want_pred && (i % stride != 0 || !train(i)) {
+            continue;
+        }
+        for row in 0..rows {
+            let mut srow = 0.0;
+            for c in 0..cols {
+                let k = row * cols + c;
+                let z = zhat(&theta[k], ds, i, n_int, curv_k, sens[i] * p_at(k, i));
+                let g = (m[i] * z).max(1e-12);
+                gs[c] = g / (1.0 + r * g);
+                srow += gs[c];
+            }
+            let xf = (1.0 - rs * srow).max(0.05);
+            for c in 0..cols {
+                let idx = i * n + row * cols + c;
+                let v = ds.map.dom(ds.map.from_g(gs[c] * xf));
+                if want_pred {
+                    pred[idx] = v;
+                } else if ctx.usable[idx] {
+                    train_sse += (v - ctx.dom_obs[idx]).powi(2);
+                }
+            }
+        }
+    }
+    Eval {
+        pred,
+        theta,
+        m,
+        latent: latent.map(|l| l.1),
+        train_sse,
+    }
+}
+
+fn zhat(th: &[f64], ds: &Dataset, i: usize, n_int: usize, curv_k: bool, sp: f64) -> f64 {
+    let mut z = if n_int > 1 { th[ds.trial[i]] } else { th[0] };
+    if curv_k {
+        z += th[n_int] * ds.kappa.as_ref().map_or(0.0, |k| k[i]);
+    }
+    z + th[th.len() - 1] * sp
+}

@@ -1,0 +1,367 @@
+//! The reference world: a richer sensor than the tool's own model, used to prove the
+//! diagnosis on recordings where an effect is concealed. Its functional forms differ on
+//! purpose: two-time-constant creep (the tool fits one), Bouc-Wen hysteresis (the tool fits a
+//! play operator), an exponential temperature law behind a two-stage thermal lag (the tool:
+//! linear, one lag), a linear curvature sensitivity loss (the tool: 1/(1 + kappa/kappa_s)), the
+//! exact crosstalk network with op-amp offsets (the tool: first-order row droop), scan skew
+//! with row-switch settling, and a soft-knee saturation. Noise is white plus AR(1) plus ADC
+//! rounding, and the reference force carries load-cell noise. Effects are small: the aggregate
+//! error barely moves.
+
+use std::path::PathBuf;
+
+use taxel_formats::csv::Recording;
+use taxel_sim::rng::Rng;
+
+/// A proof case.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Case {
+    Null,
+    Creep,
+    Hysteresis,
+    ThermalRecorded,
+    ThermalHidden,
+    CurvatureSensitivity,
+    CurvatureBaseline,
+    CurvatureUnlabelled,
+    Crosstalk,
+    ScanSkew,
+    Saturation,
+    TwoEffects,
+    BrokenThread,
+    Distractor,
+}
+
+impl Case {
+    pub const ALL: [Case; 14] = [
+        Case::Null,
+        Case::Creep,
+        Case::Hysteresis,
+        Case::ThermalRecorded,
+        Case::ThermalHidden,
+        Case::CurvatureSensitivity,
+        Case::CurvatureBaseline,
+        Case::CurvatureUnlabelled,
+        Case::Crosstalk,
+        Case::ScanSkew,
+        Case::Saturation,
+        Case::TwoEffects,
+        Case::BrokenThread,
+        Case::Distractor,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Case::Null => "null",
+            Case::Creep => "creep",
+            Case::Hysteresis => "hysteresis",
+            Case::ThermalRecorded => "thermal_drift (temp_c recorded)",
+            Case::ThermalHidden => "thermal_drift (no temp_c column)",
+            Case::CurvatureSensitivity => "curvature_sensitivity",
+            Case::CurvatureBaseline => "curvature_baseline",
+            Case::CurvatureUnlabelled => "curvature, no curvature column",
+            Case::Crosstalk => "crosstalk",
+            Case::ScanSkew => "scan_skew",
+            Case::Saturation => "saturation (start model without a floor)",
+            Case::TwoEffects => "hysteresis + thermal_drift",
+            Case::BrokenThread => "intermittent broken thread (outside the library)",
+            Case::Distractor => "distractor: slow temp_c with no effect",
+        }
+    }
+
+    pub fn slug(self) -> String {
+        let s = format!("{self:?}");
+        let mut out = String::new();
+        for (i, ch) in s.chars().enumerate() {
+            if ch.is_uppercase() && i > 0 {
+                out.push('_');
+            }
+            out.push(ch.to_ascii_lowercase());
+        }
+        out
+    }
+
+    /// What the tool should name.
+    pub fn truth(self) -> (&'static str, &'static [&'static str]) {
+        match self {
+            Case::Null | Case::Distractor => ("none", &[]),
+            Case::Creep => ("explained", &["creep"]),
+            Case::Hysteresis => ("explained", &["hysteresis"]),
+            Case::ThermalRecorded | Case::ThermalHidden => ("explained", &["thermal_drift"]),
+            Case::CurvatureSensitivity => ("explained", &["curvature_sensitivity"]),
+            Case::CurvatureBaseline => ("explained", &["curvature_baseline"]),
+            Case::CurvatureUnlabelled => (
+                "explained",
+                &["curvature_baseline", "curvature_sensitivity"],
+            ),
+            Case::Crosstalk => ("explained", &["crosstalk"]),
+            Case::ScanSkew => ("explained", &["scan_skew"]),
+            Case::Saturation => ("explained", &["saturation"]),
+            Case::TwoEffects => ("explained", &["hysteresis", "thermal_drift"]),
+            Case::BrokenThread => ("unexplained", &[]),
+        }
+    }
+
+    /// The start model's resistance floor for this case (the saturation case starts from a
+    /// model without one: that is the physics "left out").
+    pub fn start_floor_ohm(self) -> f64 {
+        if self == Case::Saturation {
+            0.0
+        } else {
+            400.0
+        }
+    }
+}
+
+const ROWS: usize = 4;
+const COLS: usize = 4;
+const N: usize = ROWS * COLS;
+const RATE_HZ: f64 = 100.0;
+
+/// Press schedule: (start_s, rise_s, hold_s, fall_s, level_n).
+fn schedule(rng: &mut Rng, duration: f64, fast: bool) -> Vec<(f64, f64, f64, f64, f64)> {
+    let mut out = Vec::new();
+    let mut t = 2.0;
+    let mut i = 0;
+    while t < duration - 12.0 {
+        let level = 2.0 + 13.0 * rng.uniform();
+        let rise = if fast {
+            0.08 + 0.2 * rng.uniform()
+        } else {
+            0.15 + 1.2 * rng.uniform()
+        };
+        // Mostly short holds; every fifth press a long one (creep shows only there).
+        let hold = if i % 5 == 4 {
+            6.0 + 4.0 * rng.uniform()
+        } else {
+            0.3 + 1.5 * rng.uniform()
+        };
+        let fall = if fast {
+            0.08 + 0.2 * rng.uniform()
+        } else {
+            0.15 + 1.0 * rng.uniform()
+        };
+        out.push((t, rise, hold, fall, level));
+        t += rise + hold + fall + 1.0 + 3.0 * rng.uniform();
+        i += 1;
+    }
+    out
+}
+
+fn force_at(s: &[(f64, f64, f64, f64, f64)], t: f64) -> f64 {
+    for &(t0, rise, hold, fall, level) in s {
+        if t < t0 {
+            break;
+        }
+        let u = t - t0;
+        if u < rise {
+            let x = u / rise;
+            return level * x * x * (3.0 - 2.0 * x);
+        }
+        if u < rise + hold {
+            return level;
+        }
+        if u < rise + hold + fall {
+            let x = 1.0 - (u - rise - hold) / fall;
+            return level * x * x * (3.0 - 2.0 * x);
+        }
+    }
+    0.0
+}
+
+/// Generates the recording of `case` (about `duration_s` long) with `seed`.
+pub fn generate(case: Case, seed: u64, duration_s: f64) -> Recording {
+    let mut rng = Rng::new(seed, 77);
+    let fast = case == Case::ScanSkew;
+    let sched = schedule(&mut rng, duration_s, fast);
+    // The contact: a fixed load map, strongest around (1.2, 1.6), with rows carrying
+    // different totals.
+    let mut w = [0.0f64; N];
+    for r in 0..ROWS {
+        for c in 0..COLS {
+            let d2 = (r as f64 - 1.2).powi(2) / 1.4 + (c as f64 - 1.6).powi(2) / 2.5;
+            w[r * COLS + c] = (-d2).exp();
+        }
+    }
+    let ws: f64 = w.iter().sum();
+    w.iter_mut().for_each(|v| *v /= ws);
+    let g0: Vec<f64> = (0..N).map(|_| 25e-6 * (0.1 * rng.normal()).exp()).collect();
+    let gain: Vec<f64> = (0..N)
+        .map(|_| 150e-6 * (0.08 * rng.normal()).exp())
+        .collect();
+    let u: Vec<f64> = (0..N)
+        .map(|k| ((k % COLS) as f64 + 0.5) / COLS as f64 * 2.0 - 1.0)
+        .collect();
+    let vos: Vec<f64> = (0..COLS)
+        .map(|_| 0.003 * (2.0 * rng.uniform() - 1.0))
+        .collect();
+    let exponent = 1.12;
+    let r_floor = 350.0;
+    let (vref, rg, max_code) = (0.5, 5600.0, 1023.0);
+    let dt = 1.0 / RATE_HZ;
+    let len = (duration_s * RATE_HZ) as usize;
+    // Trials (curvature cases): five mountings of equal length.
+    let curv_case = matches!(
+        case,
+        Case::CurvatureSensitivity | Case::CurvatureBaseline | Case::CurvatureUnlabelled
+    );
+    let kappas = [0.0, 60.0, 20.0, 80.0, 40.0];
+    // Temperature: slow wave plus a ramp; the distractor's wave differs.
+    let temp_of = |t: f64| -> f64 {
+        match case {
+            Case::Distractor => 24.0 + 3.0 * (2.0 * std::f64::consts::PI * t / 170.0).sin(),
+            _ => {
+                25.0 + 6.0 * (t / duration_s) + 3.0 * (2.0 * std::f64::consts::PI * t / 140.0).sin()
+            }
+        }
+    };
+    let thermal = matches!(
+        case,
+        Case::ThermalRecorded | Case::ThermalHidden | Case::TwoEffects
+    );
+    let hyst = matches!(case, Case::Hysteresis | Case::TwoEffects);
+    let mut noise_ar = [0.0f64; N];
+    let mut creep_s = [[0.0f64; 2]; N];
+    let mut bw_z = [0.0f64; N];
+    let mut f_prev = [0.0f64; N];
+    let (mut t1, mut t2) = (temp_of(0.0), temp_of(0.0));
+    let mut settle = [0.0f64; N];
+    // Broken thread: node 6 opens during some presses.
+    let broken_presses: Vec<bool> = sched.iter().map(|_| rng.uniform() < 0.35).collect();
+    let mut rec = Recording {
+        path: PathBuf::from(format!("refworld-{}-seed{seed}.csv", case.slug())),
+        n_nodes: N,
+        ..Recording::default()
+    };
+    let mut force_col = Vec::with_capacity(len);
+    let mut kappa_col = Vec::with_capacity(len);
+    let mut temp_col = Vec::with_capacity(len);
+    let mut trial_col = Vec::with_capacity(len);
+    let mut g = [0.0f64; N];
+    for i in 0..len {
+        let t = i as f64 * dt;
+        let trial = if curv_case { (i * 5 / len).min(4) } else { 0 };
+        let kappa = if curv_case { kappas[trial] } else { 0.0 };
+        let amb = temp_of(t);
+        // Two-stage thermal lag (60 s and 20 s).
+        t1 += (amb - t1) * (1.0 - (-dt / 60.0f64).exp());
+        t2 += (t1 - t2) * (1.0 - (-dt / 20.0f64).exp());
+        let th = if thermal {
+            (-0.004 * (t2 - 25.0)).exp()
+        } else {
+            1.0
+        };
+        let sens = match case {
+            Case::CurvatureSensitivity | Case::CurvatureUnlabelled => 1.0 - 0.005 * kappa,
+            _ => 1.0,
+        };
+        let press = sched
+            .iter()
+            .position(|p| t >= p.0 && t < p.0 + p.1 + p.2 + p.3);
+        for k in 0..N {
+            let skew = if case == Case::ScanSkew {
+                0.0006 * k as f64
+            } else {
+                0.0
+            };
+            let f_total = force_at(&sched, t + skew);
+            let mut f = f_total * w[k];
+            if case == Case::ScanSkew {
+                // Row-switch settling: the first node of each row lags its input.
+                let tau = if k % COLS == 0 { 0.002 } else { 0.0002 };
+                settle[k] += (f - settle[k]) * (1.0 - (-dt / tau).exp());
+                f = settle[k];
+            }
+            if hyst {
+                // Bouc-Wen on the local load (A = 1, beta = gamma = 0.5 / z_max, n = 1).
+                let df = f - f_prev[k];
+                let zmax = 0.25;
+                let z = bw_z[k];
+                bw_z[k] = z + df - (0.5 / zmax) * (df.abs() * z + df * z.abs());
+                f += 0.45 * bw_z[k];
+            }
+            f_prev[k] = f_total * w[k];
+            if matches!(case, Case::Creep) {
+                // Two-time-constant creep.
+                for (s, tau) in creep_s[k].iter_mut().zip([1.5, 40.0]) {
+                    *s += (f - *s) * (1.0 - (-dt / tau).exp());
+                }
+                f += 0.05 * creep_s[k][0] + 0.07 * creep_s[k][1];
+            }
+            let base = match case {
+                Case::CurvatureBaseline | Case::CurvatureUnlabelled => {
+                    g0[k] * (1.0 + kappa * (0.004 + 0.003 * u[k] + 0.002 * (u[k] * u[k] - 0.3)))
+                }
+                _ => g0[k],
+            };
+            let mut gk = (base + gain[k] * sens * f.max(0.0).powf(exponent)) * th;
+            if case == Case::BrokenThread && k == 6 {
+                if let Some(p) = press {
+                    let (t0, rise, hold, _, _) = sched[p];
+                    if broken_presses[p] && t > t0 + rise * 0.5 && t < t0 + rise + 0.8 * hold {
+                        gk = g0[k] * 0.3;
+                    }
+                }
+            }
+            gk = if case == Case::Saturation {
+                let gsat = 900e-6;
+                gk / (1.0 + (gk / gsat).powi(2)).sqrt()
+            } else {
+                gk / (1.0 + gk * r_floor)
+            };
+            g[k] = gk;
+        }
+        let mut vout = [0.0f64; N];
+        if case == Case::Crosstalk {
+            let rs = 70.0;
+            let mut v_row = [0.0f64; ROWS];
+            for sel in 0..ROWS {
+                for (ri, vr) in v_row.iter_mut().enumerate() {
+                    let v_src = if ri == sel { 0.0 } else { vref };
+                    let mut num = v_src / rs;
+                    let mut den = 1.0 / rs;
+                    for c in 0..COLS {
+                        num += (vref + vos[c]) * g[ri * COLS + c];
+                        den += g[ri * COLS + c];
+                    }
+                    *vr = num / den;
+                }
+                for c in 0..COLS {
+                    let vc = vref + vos[c];
+                    let ic: f64 = (0..ROWS)
+                        .map(|ri| (vc - v_row[ri]) * g[ri * COLS + c])
+                        .sum();
+                    vout[sel * COLS + c] = vc + rg * ic;
+                }
+            }
+        } else {
+            for k in 0..N {
+                vout[k] = vref * (1.0 + rg * g[k]);
+            }
+        }
+        for k in 0..N {
+            noise_ar[k] = 0.5 * noise_ar[k] + 0.35 * rng.normal();
+            let code = vout[k].min(5.0) / 5.0 * max_code + 0.6 * rng.normal() + noise_ar[k];
+            rec.nodes.push(code.round().clamp(0.0, max_code));
+        }
+        rec.t_s.push(t);
+        force_col.push((force_at(&sched, t) + 0.02 * rng.normal()).max(0.0));
+        kappa_col.push(kappa);
+        temp_col.push(amb + 0.05 * rng.normal());
+        trial_col.push(trial as i64);
+    }
+    rec.force_n = Some(force_col);
+    if matches!(case, Case::CurvatureSensitivity | Case::CurvatureBaseline) {
+        rec.curvature_m1 = Some(kappa_col);
+    }
+    if curv_case {
+        rec.trial = Some(trial_col);
+    }
+    if matches!(
+        case,
+        Case::ThermalRecorded | Case::TwoEffects | Case::Distractor
+    ) {
+        rec.temp_c = Some(temp_col);
+    }
+    rec
+}

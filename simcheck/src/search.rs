@@ -1,0 +1,649 @@
+//! Fitting and model selection: Nelder-Mead over a few global parameters (per-node parameters
+//! are solved inside each evaluation), two-fold cross-validation over alternating time blocks,
+//! and the acceptance rule for an effect: it must lower the held-out error consistently across
+//! blocks (block t statistic), by more than an information criterion charges for its
+//! parameters, and by a minimum relative amount.
+
+use crate::model::{
+    evaluate, evaluate_with, latent_knots, Config, Context, EffectKind, Eval, Thermal,
+};
+
+/// Acceptance thresholds (documented in docs/simcheck.md).
+pub const MIN_BLOCK_T: f64 = 3.0;
+pub const MIN_REL_GAIN: f64 = 0.01;
+
+/// A global parameter the search moves, in an unconstrained coordinate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Param {
+    LnExponent,
+    LnFloor,
+    CreepC,
+    CreepLnTau,
+    HystW,
+    HystLnR,
+    ThermAlpha,
+    ThermLnTau,
+    CurvSens,
+    LnRs,
+    LnSkew,
+}
+
+impl Param {
+    pub fn get(self, c: &Config) -> f64 {
+        match self {
+            Param::LnExponent => c.exponent.ln(),
+            Param::LnFloor => c.r_floor_ohm.max(1e-9).ln(),
+            Param::CreepC => c.creep.map_or(0.0, |v| v.0),
+            Param::CreepLnTau => c.creep.map_or(0.0, |v| v.1.ln()),
+            Param::HystW => c.hysteresis.map_or(0.0, |v| v.0),
+            Param::HystLnR => c.hysteresis.map_or(0.0, |v| v.1.max(1e-9).ln()),
+            Param::ThermAlpha => match &c.thermal {
+                Some(Thermal::Recorded { alpha_per_k, .. }) => alpha_per_k * 100.0,
+                _ => 0.0,
+            },
+            Param::ThermLnTau => match &c.thermal {
+                Some(Thermal::Recorded { tau_s, .. }) => tau_s.ln(),
+                _ => 0.0,
+            },
+            Param::CurvSens => c.curv_sens.unwrap_or(0.0),
+            Param::LnRs => c.crosstalk.map_or(0.0, |v| v.max(1e-9).ln()),
+            Param::LnSkew => c.scan_skew.map_or(0.0, |v| v.max(1e-9).ln()),
+        }
+    }
+
+    pub fn set(self, c: &mut Config, v: f64) {
+        match self {
+            Param::LnExponent => c.exponent = v.clamp(0.2f64.ln(), 3f64.ln()).exp(),
+            Param::LnFloor => c.r_floor_ohm = v.clamp(-30.0, 30.0).exp(),
+            Param::CreepC => {
+                if let Some(cr) = &mut c.creep {
+                    cr.0 = v.clamp(-0.5, 2.0);
+                }
+            }
+            Param::CreepLnTau => {
+                if let Some(cr) = &mut c.creep {
+                    cr.1 = v.clamp(0.05f64.ln(), 5000f64.ln()).exp();
+                }
+            }
+            Param::HystW => {
+                if let Some(h) = &mut c.hysteresis {
+                    h.0 = v.clamp(0.0, 0.95);
+                }
+            }
+            Param::HystLnR => {
+                if let Some(h) = &mut c.hysteresis {
+                    h.1 = v.clamp(-12.0, 8.0).exp();
+                }
+            }
+            Param::ThermAlpha => {
+                if let Some(Thermal::Recorded { alpha_per_k, .. }) = &mut c.thermal {
+                    *alpha_per_k = (v / 100.0).clamp(-0.09, 0.09);
+                }
+            }
+            Param::ThermLnTau => {
+                if let Some(Thermal::Recorded { tau_s, .. }) = &mut c.thermal {
+                    *tau_s = v.clamp(0.0, 12.0).exp();
+                }
+            }
+            Param::CurvSens => c.curv_sens = Some(v),
+            Param::LnRs => c.crosstalk = Some(v.clamp(-20.0, 10.0).exp()),
+            Param::LnSkew => c.scan_skew = Some(v.clamp(-20.0, -2.0).exp()),
+        }
+    }
+
+    fn step(self) -> f64 {
+        match self {
+            Param::CreepC => 0.03,
+            Param::HystW => 0.05,
+            Param::ThermAlpha => 0.1,
+            Param::CurvSens => 0.5,
+            Param::LnExponent => 0.05,
+            _ => 0.5,
+        }
+    }
+}
+
+/// Sum of squared residuals (sim - rec, residual domain) over usable samples selected by `sel`.
+pub fn sse(ctx: &Context, ev: &Eval, sel: &dyn Fn(usize) -> bool) -> f64 {
+    let n = ctx.ds.n;
+    let mut s = 0.0;
+    for i in 0..ctx.ds.len() {
+        if !sel(i) {
+            continue;
+        }
+        for k in 0..n {
+            let idx = i * n + k;
+            if ctx.usable[idx] {
+                let r = ev.pred[idx] - ctx.dom_obs[idx];
+                s += r * r;
+            }
+        }
+    }
+    s
+}
+
+/// Minimises `f` with Nelder-Mead from `x0`; returns the best point and value.
+pub fn nelder_mead(
+    f: &mut dyn FnMut(&[f64]) -> f64,
+    x0: &[f64],
+    steps: &[f64],
+    max_evals: usize,
+) -> (Vec<f64>, f64) {
+    let d = x0.len();
+    if d == 0 {
+        return (Vec::new(), f(x0));
+    }
+    let mut pts: Vec<(Vec<f64>, f64)> = Vec::with_capacity(d + 1);
+    pts.push((x0.to_vec(), f(x0)));
+    for j in 0..d {
+        let mut x = x0.to_vec();
+        x[j] += steps[j];
+        let v = f(&x);
+        pts.push((x, v));
+    }
+    let mut evals = d + 1;
+    while evals < max_evals {
+        pts.sort_by(|a, b| a.1.total_cmp(&b.1));
+        let spread = pts[d].1 - pts[0].1;
+        if spread.abs() <= 1e-9 * pts[0].1.abs().max(1e-300) {
+            break;
+        }
+        let mut c = vec![0.0; d];
+        for p in &pts[..d] {
+            for (ci, xi) in c.iter_mut().zip(&p.0) {
+                *ci += xi / d as f64;
+            }
+        }
+        let along = |t: f64| -> Vec<f64> {
+            c.iter()
+                .zip(&pts[d].0)
+                .map(|(ci, wi)| ci + t * (wi - ci))
+                .collect()
+        };
+        let xr = along(-1.0);
+        let fr = f(&xr);
+        evals += 1;
+        if fr < pts[0].1 {
+            let xe = along(-2.0);
+            let fe = f(&xe);
+            evals += 1;
+            pts[d] = if fe < fr { (xe, fe) } else { (xr, fr) };
+        } else if fr < pts[d - 1].1 {
+            pts[d] = (xr, fr);
+        } else {
+            let xc = along(0.5);
+            let fc = f(&xc);
+            evals += 1;
+            if fc < pts[d].1 {
+                pts[d] = (xc, fc);
+            } else {
+                let best = pts[0].0.clone();
+                for p in pts.iter_mut().skip(1) {
+                    let x: Vec<f64> = best
+                        .iter()
+                        .zip(&p.0)
+                        .map(|(b, x)| b + 0.5 * (x - b))
+                        .collect();
+                    p.1 = f(&x);
+                    p.0 = x;
+                    evals += 1;
+                }
+            }
+        }
+    }
+    pts.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let best = pts.swap_remove(0);
+    (best.0, best.1)
+}
+
+/// Fits the listed parameters of `cfg` on the samples where `train` holds: a coarse grid over
+/// the alternative starting points `starts`, then Nelder-Mead from the best.
+pub fn fit(
+    ctx: &Context,
+    starts: &[Config],
+    params: &[Param],
+    train: &dyn Fn(usize) -> bool,
+    max_evals: usize,
+) -> Config {
+    let stride = ctx.search_stride();
+    let objective = |c: &Config| -> f64 {
+        let v = evaluate_with(ctx, c, train, stride, false).train_sse;
+        if v.is_finite() {
+            v
+        } else {
+            f64::MAX
+        }
+    };
+    let mut best: Option<(Config, f64)> = None;
+    for s in starts {
+        let v = objective(s);
+        if best.as_ref().is_none_or(|b| v < b.1) {
+            best = Some((s.clone(), v));
+        }
+    }
+    let Some((start, _)) = best else {
+        return Config::base(1.0, 0.0);
+    };
+    let x0: Vec<f64> = params.iter().map(|p| p.get(&start)).collect();
+    let steps: Vec<f64> = params.iter().map(|p| p.step()).collect();
+    let mut obj = |x: &[f64]| -> f64 {
+        let mut c = start.clone();
+        for (p, v) in params.iter().zip(x) {
+            p.set(&mut c, *v);
+        }
+        objective(&c)
+    };
+    let (x, _) = nelder_mead(&mut obj, &x0, &steps, max_evals);
+    let mut c = start;
+    for (p, v) in params.iter().zip(&x) {
+        p.set(&mut c, *v);
+    }
+    // A latent thermal factor is re-read from the final evaluation.
+    if let Some(Thermal::Latent { .. }) = &c.thermal {
+        let ev = evaluate(ctx, &c, train);
+        if let (Some(Thermal::Latent { values, .. }), Some(v)) = (&mut c.thermal, ev.latent) {
+            *values = v;
+        }
+    }
+    c
+}
+
+/// The base parameters searched with every model.
+pub fn base_params(cfg: &Config) -> Vec<Param> {
+    let mut p = vec![Param::LnExponent];
+    if cfg.sat_in_base || cfg.saturation {
+        p.push(Param::LnFloor);
+    }
+    p
+}
+
+/// Whether an effect can be tested on this recording, and why not.
+pub fn applicable(ctx: &Context, cur: &Config, e: EffectKind) -> Result<(), &'static str> {
+    let ds = ctx.ds;
+    let kappa_varies = ds.kappa.as_ref().is_some_and(|k| {
+        let lo = k.iter().cloned().fold(f64::INFINITY, f64::min);
+        let hi = k.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        hi - lo > 1e-9
+    });
+    match e {
+        EffectKind::CurvatureBaseline => {
+            if kappa_varies || (ds.kappa.is_none() && ds.n_trials >= 2) {
+                Ok(())
+            } else {
+                Err("needs two or more curvatures or trials")
+            }
+        }
+        EffectKind::CurvatureSensitivity => {
+            let shifts = &ctx.trial_shift;
+            let mean = shifts.iter().sum::<f64>() / shifts.len().max(1) as f64;
+            let sd = (shifts.iter().map(|s| (s - mean).powi(2)).sum::<f64>()
+                / shifts.len().max(1) as f64)
+                .sqrt();
+            if kappa_varies || (ds.kappa.is_none() && ds.n_trials >= 3 && sd > 0.005) {
+                Ok(())
+            } else {
+                Err("needs two or more curvatures, or three or more trials whose no-load baselines differ")
+            }
+        }
+        EffectKind::Saturation => {
+            if cur.sat_in_base {
+                Err("part of the base fit (the starting model has a resistance floor)")
+            } else {
+                Ok(())
+            }
+        }
+        EffectKind::Crosstalk => {
+            if ds.rows >= 2 && ds.cols >= 2 && ds.map.kind() == taxel_sim::ReadoutKind::Amplifier {
+                Ok(())
+            } else {
+                Err("needs a row-column matrix read through the amplifier")
+            }
+        }
+        EffectKind::ScanSkew => {
+            if ds.n >= 2 {
+                Ok(())
+            } else {
+                Err("needs two or more nodes")
+            }
+        }
+        EffectKind::ThermalDrift => {
+            if ds.temp.is_some() || ds.duration() >= 60.0 {
+                Ok(())
+            } else {
+                Err("no temperature column and shorter than 60 s")
+            }
+        }
+        EffectKind::Creep | EffectKind::Hysteresis => Ok(()),
+    }
+}
+
+/// Starting points and searched parameters for adding effect `e` to `cur`.
+pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Vec<Param>) {
+    let ds = ctx.ds;
+    // The resistance floor stays at its current value while a candidate is tested (except
+    // saturation itself): it is slow to search and rarely trades off with the others.
+    let mut params = vec![Param::LnExponent];
+    let mut starts = Vec::new();
+    let fmax = ds.max_force().max(1e-9);
+    let gmax = ctx
+        .g_obs
+        .iter()
+        .zip(&ctx.usable)
+        .filter(|(_, u)| **u)
+        .map(|(g, _)| *g)
+        .fold(0.0, f64::max)
+        .max(1e-12);
+    let dur = ds.duration().max(1.0);
+    match e {
+        EffectKind::Creep => {
+            for tau in [0.5, 2.0, 8.0, 30.0, 120.0] {
+                if tau > dur {
+                    continue;
+                }
+                for c in [0.03, 0.1] {
+                    let mut s = cur.clone();
+                    s.creep = Some((c, tau));
+                    starts.push(s);
+                }
+            }
+            params.extend([Param::CreepC, Param::CreepLnTau]);
+        }
+        EffectKind::Hysteresis => {
+            for r in [0.02, 0.06, 0.2] {
+                for w in [0.05, 0.2] {
+                    let mut s = cur.clone();
+                    s.hysteresis = Some((w, r * fmax));
+                    starts.push(s);
+                }
+            }
+            params.extend([Param::HystW, Param::HystLnR]);
+        }
+        EffectKind::ThermalDrift => {
+            if ds.temp.is_some() {
+                for tau in [10.0, 60.0, 300.0] {
+                    for a in [-0.003, 0.003] {
+                        let mut s = cur.clone();
+                        s.thermal = Some(Thermal::Recorded {
+                            alpha_per_k: a,
+                            tau_s: tau,
+                        });
+                        starts.push(s);
+                    }
+                }
+                params.extend([Param::ThermAlpha, Param::ThermLnTau]);
+            } else {
+                let knots = latent_knots(ds);
+                let mut s = cur.clone();
+                s.thermal = Some(Thermal::Latent {
+                    values: vec![1.0; knots.len()],
+                    knots_s: knots,
+                });
+                starts.push(s);
+            }
+        }
+        EffectKind::CurvatureSensitivity => {
+            let grid: Vec<f64> = if ds.kappa.is_some() {
+                vec![30.0, 100.0, 300.0, 1000.0]
+            } else {
+                vec![-3.0, -1.0, 1.0, 3.0]
+            };
+            for v in grid {
+                let mut s = cur.clone();
+                s.curv_sens = Some(v);
+                starts.push(s);
+            }
+            params.push(Param::CurvSens);
+        }
+        EffectKind::CurvatureBaseline => {
+            let mut s = cur.clone();
+            s.curv_base = true;
+            starts.push(s);
+        }
+        EffectKind::Saturation => {
+            for x in [0.05, 0.2, 0.5] {
+                let mut s = cur.clone();
+                s.saturation = true;
+                s.r_floor_ohm = x / gmax;
+                starts.push(s);
+            }
+            params.push(Param::LnFloor);
+        }
+        EffectKind::Crosstalk => {
+            let srow = gmax * ds.cols as f64;
+            for x in [0.01, 0.05, 0.15] {
+                let mut s = cur.clone();
+                s.crosstalk = Some(x / srow);
+                starts.push(s);
+            }
+            params.push(Param::LnRs);
+        }
+        EffectKind::ScanSkew => {
+            for dt in [1e-4, 4e-4, 1.5e-3] {
+                let mut s = cur.clone();
+                s.scan_skew = Some(dt);
+                starts.push(s);
+            }
+            params.push(Param::LnSkew);
+        }
+    }
+    params.dedup();
+    (starts, params)
+}
+
+/// All parameters of a configuration (for the joint refit after acceptance).
+pub fn all_params(cfg: &Config) -> Vec<Param> {
+    let mut p = base_params(cfg);
+    if cfg.creep.is_some() {
+        p.extend([Param::CreepC, Param::CreepLnTau]);
+    }
+    if cfg.hysteresis.is_some() {
+        p.extend([Param::HystW, Param::HystLnR]);
+    }
+    if let Some(Thermal::Recorded { .. }) = cfg.thermal {
+        p.extend([Param::ThermAlpha, Param::ThermLnTau]);
+    }
+    if cfg.curv_sens.is_some() {
+        p.push(Param::CurvSens);
+    }
+    if cfg.crosstalk.is_some() {
+        p.push(Param::LnRs);
+    }
+    if cfg.scan_skew.is_some() {
+        p.push(Param::LnSkew);
+    }
+    p
+}
+
+/// Number of parameters an effect adds (for the information criterion).
+pub fn n_params(ctx: &Context, e: EffectKind) -> usize {
+    let ds = ctx.ds;
+    match e {
+        EffectKind::Creep | EffectKind::Hysteresis => 2,
+        EffectKind::ThermalDrift => {
+            if ds.temp.is_some() {
+                2
+            } else {
+                latent_knots(ds).len()
+            }
+        }
+        EffectKind::CurvatureBaseline => {
+            if ds.kappa.is_some() {
+                ds.n
+            } else {
+                ds.n * (ds.n_trials - 1)
+            }
+        }
+        EffectKind::CurvatureSensitivity
+        | EffectKind::Saturation
+        | EffectKind::Crosstalk
+        | EffectKind::ScanSkew => 1,
+    }
+}
+
+/// Held-out (two-fold) result of a model.
+#[derive(Debug, Clone)]
+pub struct Cv {
+    /// Held-out residual (sim - rec) per sample and node, 0 where unusable.
+    pub resid: Vec<f64>,
+    pub sse: f64,
+    pub count: usize,
+    /// SSE per block.
+    pub block_sse: Vec<f64>,
+    /// The configuration fitted on each fold's training half.
+    pub fits: [Config; 2],
+}
+
+impl Cv {
+    pub fn rmse(&self) -> f64 {
+        (self.sse / self.count.max(1) as f64).sqrt()
+    }
+}
+
+/// Two-fold cross-validation: fit on one fold's blocks, predict the other.
+pub fn cross_validate(ctx: &Context, starts: &[Config], params: &[Param], max_evals: usize) -> Cv {
+    let ds = ctx.ds;
+    let n = ds.n;
+    let mut resid = vec![0.0; ds.len() * n];
+    let mut fits = Vec::with_capacity(2);
+    let folds: Vec<(Config, Eval)> = std::thread::scope(|sc| {
+        let handles: Vec<_> = (0..2)
+            .map(|f| {
+                sc.spawn(move || {
+                    let train = |i: usize| ctx.fold(i) != f;
+                    let cfg = fit(ctx, starts, params, &train, max_evals);
+                    let ev = evaluate(ctx, &cfg, &train);
+                    (cfg, ev)
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
+            .collect()
+    });
+    for (f, (cfg, ev)) in folds.into_iter().enumerate() {
+        for i in 0..ds.len() {
+            if ctx.fold(i) == f {
+                for k in 0..n {
+                    let idx = i * n + k;
+                    if ctx.usable[idx] {
+                        resid[idx] = ev.pred[idx] - ctx.dom_obs[idx];
+                    }
+                }
+            }
+        }
+        fits.push(cfg);
+    }
+    let mut block_sse = vec![0.0; ctx.n_blocks];
+    let mut count = 0;
+    for i in 0..ds.len() {
+        for k in 0..n {
+            let idx = i * n + k;
+            if ctx.usable[idx] {
+                block_sse[ctx.block[i]] += resid[idx] * resid[idx];
+                count += 1;
+            }
+        }
+    }
+    let sse = block_sse.iter().sum();
+    let [a, b]: [Config; 2] = match fits.try_into() {
+        Ok(v) => v,
+        Err(_) => [Config::base(1.0, 0.0), Config::base(1.0, 0.0)],
+    };
+    Cv {
+        resid,
+        sse,
+        count,
+        block_sse,
+        fits: [a, b],
+    }
+}
+
+/// How strongly a richer model beats a simpler one on held-out data.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct Verdict {
+    pub rmse_before: f64,
+    pub rmse_after: f64,
+    /// Relative fall in held-out SSE.
+    pub rel_gain: f64,
+    /// Mean per-block SSE reduction over its standard error.
+    pub block_t: f64,
+    /// Share of blocks that improved.
+    pub blocks_improved: f64,
+    /// Effective sample size used by the criterion.
+    pub n_eff: f64,
+    /// n_eff ln(SSE0/SSE1) - k ln(n_eff): positive = the parameters pay for themselves.
+    pub ic_gain: f64,
+    pub accepted: bool,
+}
+
+pub fn compare(before: &Cv, after: &Cv, extra_params: usize, tau_int: f64) -> Verdict {
+    let d: Vec<f64> = before
+        .block_sse
+        .iter()
+        .zip(&after.block_sse)
+        .map(|(a, b)| a - b)
+        .collect();
+    let nb = d.len().max(1) as f64;
+    let mean = d.iter().sum::<f64>() / nb;
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (nb - 1.0).max(1.0);
+    let se = (var / nb).sqrt();
+    let block_t = if se > 0.0 { mean / se } else { 0.0 };
+    let improved = d.iter().filter(|x| **x > 0.0).count() as f64 / nb;
+    let n_eff = (before.count as f64 / tau_int.max(1.0)).max(2.0);
+    let ratio = (before.sse / after.sse.max(1e-300)).max(1e-300);
+    let ic_gain = n_eff * ratio.ln() - extra_params as f64 * n_eff.ln();
+    let rel_gain = 1.0 - after.sse / before.sse.max(1e-300);
+    Verdict {
+        rmse_before: before.rmse(),
+        rmse_after: after.rmse(),
+        rel_gain,
+        block_t,
+        blocks_improved: improved,
+        n_eff,
+        ic_gain,
+        accepted: rel_gain >= MIN_REL_GAIN && block_t >= MIN_BLOCK_T && ic_gain > 0.0,
+    }
+}
+
+/// Integrated autocorrelation time of a residual (per node, averaged), in samples.
+pub fn tau_int(resid: &[f64], len: usize, n: usize) -> f64 {
+    let mut total = 0.0;
+    let mut used = 0;
+    let max_lag = (len / 10).clamp(1, 2000);
+    for k in 0..n {
+        let x: Vec<f64> = (0..len).map(|i| resid[i * n + k]).collect();
+        let mean = x.iter().sum::<f64>() / len as f64;
+        let var = x.iter().map(|v| (v - mean).powi(2)).sum::<f64>();
+        if var <= 0.0 {
+            continue;
+        }
+        let mut tau = 1.0;
+        let mut lag = 1;
+        while lag < max_lag {
+            let c: f64 = (0..len - lag)
+                .map(|i| (x[i] - mean) * (x[i + lag] - mean))
+                .sum::<f64>()
+                / var;
+            if c < 0.05 {
+                break;
+            }
+            // Coarser steps at long lags; each lag stands for the ones it skips.
+            let next = if lag < 16 { lag + 1 } else { lag + lag / 8 };
+            tau += 2.0 * c * (next - lag) as f64;
+            lag = next;
+        }
+        total += tau;
+        used += 1;
+    }
+    if used == 0 {
+        1.0
+    } else {
+        total / used as f64
+    }
+}
+
+/// Convenience: the whole-data fit of a model.
+pub fn fit_all(ctx: &Context, starts: &[Config], params: &[Param], max_evals: usize) -> Config {
+    fit(ctx, starts, params, &|_| true, max_evals)
+}
