@@ -9,6 +9,7 @@ pub mod clock;
 pub mod ipc;
 pub mod process;
 pub mod progress;
+pub mod signals;
 pub mod stats;
 pub mod wake;
 
