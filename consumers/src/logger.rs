@@ -1,7 +1,8 @@
 //! The logger: `record` subscribes to the raw, curvature, force and reference streams of one or
 //! more sensors (waking on data) and appends every sample to one record file
 //! (taxel-formats `records`), handing data to the OS every flush interval so a crash loses at
-//! most that much. `export` turns a record file into recording CSVs (one per sensor).
+//! most that much. `export` turns a record file into recording CSVs (one per sensor) and/or an
+//! MCAP file (taxel-formats `mcap`) that Foxglove opens.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -11,6 +12,7 @@ use std::time::{Duration, Instant};
 use clap::{Parser, Subcommand};
 use iceoryx2::prelude::*;
 use taxel_formats::csv::{Columns, Row};
+use taxel_formats::mcap::McapRecordWriter;
 use taxel_formats::records::Tail;
 use taxel_formats::{Record, RecordFileReader, RecordFileWriter, RecordingWriter};
 use taxel_msgs::{
@@ -35,7 +37,7 @@ pub struct Args {
 pub enum Cmd {
     /// Record the streams of one or more sensors into one file.
     Record(RecordArgs),
-    /// Export a record file to the recording CSV schema (one file per sensor).
+    /// Export a record file to the recording CSV schema (one file per sensor) and/or MCAP.
     Export(ExportArgs),
 }
 
@@ -61,8 +63,12 @@ pub struct ExportArgs {
     pub file: PathBuf,
     /// Output CSV (.csv or .csv.gz). With several sensors, `-<sensor>` is inserted before the
     /// extension unless --sensor picks one.
+    #[arg(long, required_unless_present = "mcap")]
+    pub csv: Option<PathBuf>,
+    /// Output MCAP file (Foxglove, PlotJuggler): one channel per sensor and stream, JSON
+    /// messages with a JSON Schema per type, stamped with the capture time (docs/formats.md).
     #[arg(long)]
-    pub csv: PathBuf,
+    pub mcap: Option<PathBuf>,
     /// Export only this sensor.
     #[arg(long)]
     pub sensor: Option<String>,
@@ -460,6 +466,12 @@ fn out_path(base: &Path, sensor: &str, many: bool) -> PathBuf {
 }
 
 fn export(a: ExportArgs) -> Result<(), Failure> {
+    if let Some(out) = &a.mcap {
+        export_mcap(&a.file, out, a.sensor.as_deref())?;
+    }
+    let Some(csv) = &a.csv else {
+        return Ok(());
+    };
     let mut reader = RecordFileReader::open(&a.file).config_err()?;
     let mut logs: HashMap<String, SensorLog> = HashMap::new();
     let mut order: Vec<String> = Vec::new();
@@ -544,10 +556,57 @@ fn export(a: ExportArgs) -> Result<(), Failure> {
     let many = order.len() > 1;
     for sensor in &order {
         let log = &logs[sensor];
-        let path = out_path(&a.csv, sensor, many);
+        let path = out_path(csv, sensor, many);
         let n = write_sensor_csv(&path, log).runtime_err()?;
         println!("{sensor}: {n} frames -> {}", path.display());
     }
+    Ok(())
+}
+
+/// Writes every record (of `sensor`, if given) into an MCAP file, in record-file order.
+fn export_mcap(file: &Path, out: &Path, sensor: Option<&str>) -> Result<(), Failure> {
+    let mut reader = RecordFileReader::open(file).config_err()?;
+    let mut w = McapRecordWriter::create(out).runtime_err()?;
+    let mut per_topic: std::collections::BTreeMap<String, u64> = Default::default();
+    for rec in reader.by_ref() {
+        let (Record::Raw { sensor: s, .. }
+        | Record::Curvature { sensor: s, .. }
+        | Record::Force { sensor: s, .. }
+        | Record::Reference { sensor: s, .. }) = &rec;
+        if sensor.is_some_and(|want| want != s) {
+            continue;
+        }
+        let stream = match &rec {
+            Record::Raw { .. } => "raw",
+            Record::Curvature { .. } => "curvature",
+            Record::Force { .. } => "force",
+            Record::Reference { .. } => "reference",
+        };
+        *per_topic
+            .entry(taxel_formats::mcap::topic(s, stream))
+            .or_default() += 1;
+        w.write(&rec).runtime_err()?;
+    }
+    if let Some(Tail::Incomplete { offset, reason }) = reader.tail() {
+        warn!(
+            "{}: stopped at byte {offset} ({reason}); everything before it was exported",
+            file.display()
+        );
+    }
+    if per_topic.is_empty() {
+        drop(w);
+        let _ = std::fs::remove_file(out);
+        return Err(Failure::config(anyhow::anyhow!(
+            "{}: no records{}",
+            file.display(),
+            sensor.map_or(String::new(), |s| format!(" for sensor {s}"))
+        )));
+    }
+    let n = w.finish().runtime_err()?;
+    for (topic, k) in &per_topic {
+        println!("{topic}: {k} messages");
+    }
+    println!("{n} messages -> {}", out.display());
     Ok(())
 }
 

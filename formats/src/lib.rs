@@ -1,5 +1,5 @@
 //! taxel-formats owns every file format taxel reads or writes: the recording CSV schema that all
-//! offline tools share (`csv`), the logger's crash-tolerant record file (`records`), and the one
+//! offline tools share (`csv`), the logger's crash-tolerant record file (`records`), its MCAP export and import for Foxglove (`mcap`), and the one
 //! bincode envelope (magic + format version, trailing bytes rejected) that model files use
 //! (`envelope`). Readers never panic on bad input: errors name the file and the line or byte
 //! offset. Documented in docs/formats.md.
@@ -7,6 +7,7 @@
 pub mod crc;
 pub mod csv;
 pub mod envelope;
+pub mod mcap;
 pub mod records;
 
 pub use csv::{Geometry, Recording, RecordingWriter};

@@ -35,7 +35,8 @@ pub struct Args {
 pub enum SourceArgs {
     /// The physics-based simulator (docs/sim.md).
     Sim(SimArgs),
-    /// Play back a recording CSV (schema in the README), pacing frames by its t_s.
+    /// Play back a recording CSV (schema in the README) or an exported MCAP, pacing frames by
+    /// their time stamps.
     Replay(ReplayArgs),
     /// The readout board over a serial port (docs/serial-protocol.md).
     Serial(SerialArgs),
@@ -104,8 +105,12 @@ pub struct SimArgs {
 
 #[derive(Debug, clap::Args)]
 pub struct ReplayArgs {
-    /// Recording CSV (.csv or .csv.gz).
+    /// Recording CSV (.csv or .csv.gz), or an MCAP file written by `taxel logger export --mcap`
+    /// (detected by its magic; its raw channel is played).
     pub file: PathBuf,
+    /// MCAP input: the sensor whose `/taxel/<ID>/raw` channel to play (default: the only one).
+    #[arg(long)]
+    pub from_sensor: Option<String>,
     /// Playback speed relative to the recording's t_s.
     #[arg(long, default_value_t = 1.0)]
     pub speed: f64,
@@ -204,6 +209,18 @@ fn run(args: Args) -> Result<(), Failure> {
             Box::new(src)
         }
         SourceArgs::Serial(a) => return serial(&args, a),
+        SourceArgs::Replay(a) if taxel_formats::mcap::is_mcap(&a.file) => Box::new(
+            ReplaySource::open_mcap(
+                &a.file,
+                a.from_sensor.as_deref(),
+                a.rows,
+                a.cols,
+                a.speed,
+                a.full_scale,
+                a.repeat,
+            )
+            .config_err()?,
+        ),
         SourceArgs::Replay(a) => Box::new(
             ReplaySource::open(&a.file, a.rows, a.cols, a.speed, a.full_scale, a.repeat)
                 .config_err()?,

@@ -120,6 +120,47 @@ impl ReplaySource {
         repeat: bool,
     ) -> anyhow::Result<ReplaySource> {
         let rec = Recording::read(path)?;
+        Self::from_recording(rec, path, rows, cols, speed, full_scale, repeat)
+    }
+
+    /// Plays the raw channel of one sensor of an MCAP file written by `taxel logger export
+    /// --mcap` (`from_sensor`: which one, needed when the file holds several). The array's
+    /// shape and full scale come from the frames unless given.
+    pub fn open_mcap(
+        path: &Path,
+        from_sensor: Option<&str>,
+        rows: Option<usize>,
+        cols: Option<usize>,
+        speed: f64,
+        full_scale: f32,
+        repeat: bool,
+    ) -> anyhow::Result<ReplaySource> {
+        let m = taxel_formats::mcap::read_recording(path, from_sensor)?;
+        let full_scale = if full_scale > 0.0 {
+            full_scale
+        } else {
+            m.full_scale
+        };
+        Self::from_recording(
+            m.recording,
+            path,
+            rows.or(Some(m.rows)),
+            cols.or(Some(m.cols)),
+            speed,
+            full_scale,
+            repeat,
+        )
+    }
+
+    fn from_recording(
+        rec: Recording,
+        path: &Path,
+        rows: Option<usize>,
+        cols: Option<usize>,
+        speed: f64,
+        full_scale: f32,
+        repeat: bool,
+    ) -> anyhow::Result<ReplaySource> {
         let g = rec.geometry(rows, cols)?;
         anyhow::ensure!(
             speed.is_finite() && speed > 0.0,
@@ -230,5 +271,44 @@ mod tests {
             .err()
             .expect("backwards");
         assert!(format!("{e:#}").contains("backwards"), "{e:#}");
+    }
+
+    #[test]
+    fn replay_plays_an_mcap_raw_channel() {
+        use taxel_formats::mcap::McapRecordWriter;
+        use taxel_formats::Record;
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("r.mcap");
+        let mut w = McapRecordWriter::create(&p).expect("create");
+        for (i, sensor) in [(0u64, "a"), (0, "b"), (1, "a"), (2, "a")] {
+            w.write(&Record::Raw {
+                sensor: sensor.into(),
+                seq: i,
+                t_capture_ns: 1_000_000_000 + i * 10_000_000,
+                rows: 1,
+                cols: 2,
+                flags: 0,
+                source: 0,
+                full_scale: 1023.0,
+                counts: vec![i as f32, 100.0 + i as f32],
+            })
+            .expect("write");
+        }
+        w.finish().expect("finish");
+        let e = ReplaySource::open_mcap(&p, None, None, None, 1.0, 0.0, false)
+            .err()
+            .expect("two sensors");
+        assert!(format!("{e:#}").contains("choose"), "{e:#}");
+        let mut s =
+            ReplaySource::open_mcap(&p, Some("a"), None, None, 1.0, 0.0, false).expect("open");
+        assert_eq!((s.rows(), s.cols(), s.full_scale()), (1, 2, 1023.0));
+        let mut out = [0f32; 2];
+        let mut got = Vec::new();
+        while let Some(f) = s.next_frame(&mut out) {
+            got.push((f.due_s, out));
+        }
+        assert_eq!(got.len(), 3);
+        assert_eq!(got[2].1, [2.0, 102.0]);
+        assert!((got[2].0 - 0.02).abs() < 1e-9, "{}", got[2].0);
     }
 }

@@ -1,0 +1,935 @@
+//! MCAP export and import of logged records, for Foxglove and PlotJuggler. One channel per
+//! sensor and stream (`/taxel/<sensor>/raw`, `/curvature`, `/force`, `/reference`), message
+//! encoding `json`, one JSON Schema (`jsonschema`) per message type, `log_time` = the sample's
+//! `t_capture_ns` (CLOCK_MONOTONIC of the capturing host) and `publish_time` = the calibrator's
+//! `t_publish_ns` for forces (`t_capture_ns` otherwise). Messages are written in the order of the
+//! record file, uncompressed and chunked with an index. Non-finite floats are written as JSON
+//! `null` and read back as NaN. Layout documented in docs/formats.md.
+
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::csv::Recording;
+use crate::records::Record;
+
+/// Why an MCAP file could not be written or read.
+#[derive(Debug, thiserror::Error)]
+pub enum McapError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {source}")]
+    Mcap {
+        path: PathBuf,
+        source: ::mcap::McapError,
+    },
+    #[error("{path}: message {index} on {topic}: {reason}")]
+    Message {
+        path: PathBuf,
+        index: usize,
+        topic: String,
+        reason: String,
+    },
+    #[error("{path}: {reason}")]
+    Content { path: PathBuf, reason: String },
+}
+
+/// Schema names (the message types of docs/messages.md).
+pub const RAW_SCHEMA: &str = "taxel.RawFrame";
+pub const CURVATURE_SCHEMA: &str = "taxel.CurvatureEstimate";
+pub const FORCE_SCHEMA: &str = "taxel.ForceSample";
+pub const REFERENCE_SCHEMA: &str = "taxel.Reference";
+
+/// Serde helpers: non-finite f32 <-> JSON null.
+mod nullable {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &f32, s: S) -> Result<S::Ok, S::Error> {
+        if v.is_finite() {
+            s.serialize_f32(*v)
+        } else {
+            s.serialize_none()
+        }
+    }
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f32, D::Error> {
+        Ok(Option::<f32>::deserialize(d)?.unwrap_or(f32::NAN))
+    }
+
+    pub mod vec {
+        use serde::ser::SerializeSeq;
+        use serde::{Deserialize, Deserializer, Serializer};
+
+        pub fn serialize<S: Serializer>(v: &[f32], s: S) -> Result<S::Ok, S::Error> {
+            let mut seq = s.serialize_seq(Some(v.len()))?;
+            for x in v {
+                seq.serialize_element(&x.is_finite().then_some(*x))?;
+            }
+            seq.end()
+        }
+        pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f32>, D::Error> {
+            Ok(Vec::<Option<f32>>::deserialize(d)?
+                .into_iter()
+                .map(|x| x.unwrap_or(f32::NAN))
+                .collect())
+        }
+    }
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawMsg {
+    sensor: String,
+    seq: u64,
+    t_capture_ns: u64,
+    rows: u16,
+    cols: u16,
+    flags: u32,
+    source: u32,
+    #[serde(with = "nullable")]
+    full_scale: f32,
+    #[serde(with = "nullable::vec")]
+    counts: Vec<f32>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CurvatureMsg {
+    sensor: String,
+    seq: u64,
+    t_capture_ns: u64,
+    t_window_start_ns: u64,
+    #[serde(with = "nullable")]
+    curvature_m1: f32,
+    #[serde(with = "nullable")]
+    curvature_sd_m1: f32,
+    model_version: u32,
+    flags: u32,
+    window_frames: u32,
+    #[serde(with = "nullable::vec")]
+    baseline: Vec<f32>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ForceMsg {
+    sensor: String,
+    seq: u64,
+    t_capture_ns: u64,
+    t_publish_ns: u64,
+    #[serde(with = "nullable")]
+    total_force_n: f32,
+    #[serde(with = "nullable")]
+    total_reading: f32,
+    #[serde(with = "nullable")]
+    curvature_m1: f32,
+    cal_version: u32,
+    cal_generation: u32,
+    flags: u32,
+    #[serde(with = "nullable::vec")]
+    block_force_n: Vec<f32>,
+    #[serde(with = "nullable::vec")]
+    block_reading: Vec<f32>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ReferenceMsg {
+    sensor: String,
+    seq: u64,
+    t_capture_ns: u64,
+    t_source_s: f64,
+    #[serde(with = "nullable")]
+    force_n: f32,
+    #[serde(with = "nullable")]
+    curvature_m1: f32,
+    #[serde(with = "nullable")]
+    temp_c: f32,
+    trial: i32,
+}
+
+fn int(desc: &str) -> String {
+    format!(r#"{{"type":"integer","description":"{desc}"}}"#)
+}
+fn num(desc: &str) -> String {
+    format!(r#"{{"type":["number","null"],"description":"{desc}"}}"#)
+}
+fn arr(desc: &str) -> String {
+    format!(r#"{{"type":"array","items":{{"type":["number","null"]}},"description":"{desc}"}}"#)
+}
+
+fn schema(title: &str, props: &[(&str, String)]) -> String {
+    let body: Vec<String> = props.iter().map(|(k, v)| format!(r#""{k}":{v}"#)).collect();
+    let required: Vec<String> = props.iter().map(|(k, _)| format!(r#""{k}""#)).collect();
+    format!(
+        r#"{{"$schema":"https://json-schema.org/draft/2020-12/schema","title":"{title}","type":"object","properties":{{{}}},"required":[{}],"additionalProperties":false}}"#,
+        body.join(","),
+        required.join(",")
+    )
+}
+
+fn common() -> Vec<(&'static str, String)> {
+    vec![
+        (
+            "sensor",
+            r#"{"type":"string","description":"sensor id"}"#.into(),
+        ),
+        ("seq", int("frame sequence number from the publisher")),
+        (
+            "t_capture_ns",
+            int("capture time of the raw frame, CLOCK_MONOTONIC ns"),
+        ),
+    ]
+}
+
+/// The JSON Schema of each message type, by schema name.
+pub fn json_schema(name: &str) -> Option<String> {
+    let mut p = common();
+    match name {
+        RAW_SCHEMA => {
+            p.extend([
+                ("rows", int("rows of the array")),
+                ("cols", int("columns of the array")),
+                ("flags", int("RawFrame flags bits (docs/messages.md)")),
+                ("source", int("source kind: 0 sim, 1 replay, 2 serial")),
+                ("full_scale", num("largest valid reading (counts)")),
+                (
+                    "counts",
+                    arr("raw reading per node, row-major (ADC counts)"),
+                ),
+            ]);
+        }
+        CURVATURE_SCHEMA => {
+            p.extend([
+                (
+                    "t_window_start_ns",
+                    int("capture time of the first frame of the baseline window, ns"),
+                ),
+                ("curvature_m1", num("estimated curvature (1/m)")),
+                (
+                    "curvature_sd_m1",
+                    num("standard deviation of the estimate (1/m)"),
+                ),
+                ("model_version", int("curvature model version")),
+                ("flags", int("CurvatureEstimate flags bits")),
+                ("window_frames", int("frames in the baseline window")),
+                ("baseline", arr("no-load baseline per node (ADC counts)")),
+            ]);
+        }
+        FORCE_SCHEMA => {
+            p.extend([
+                (
+                    "t_publish_ns",
+                    int("time the calibrator published, CLOCK_MONOTONIC ns"),
+                ),
+                ("total_force_n", num("force on the whole array (N)")),
+                (
+                    "total_reading",
+                    num("baseline-subtracted sum of counts of the array"),
+                ),
+                (
+                    "curvature_m1",
+                    num("curvature used by the calibration (1/m)"),
+                ),
+                (
+                    "cal_version",
+                    int("version declared in the calibration file"),
+                ),
+                (
+                    "cal_generation",
+                    int("calibration files loaded by the calibrator (1 = first)"),
+                ),
+                ("flags", int("ForceSample flags bits (docs/messages.md)")),
+                ("block_force_n", arr("force per calibration block (N)")),
+                (
+                    "block_reading",
+                    arr("baseline-subtracted sum of counts per block"),
+                ),
+            ]);
+        }
+        REFERENCE_SCHEMA => {
+            p.extend([
+                (
+                    "t_source_s",
+                    r#"{"type":"number","description":"source time (s): simulation time or the recording's t_s"}"#
+                        .into(),
+                ),
+                ("force_n", num("reference total force (N); null = unknown")),
+                (
+                    "curvature_m1",
+                    num("reference mounting curvature (1/m); null = unknown"),
+                ),
+                ("temp_c", num("ambient temperature (degC); null = unknown")),
+                ("trial", int("trial (mounting) index; -1 = unknown")),
+            ]);
+        }
+        _ => return None,
+    }
+    Some(schema(name, &p))
+}
+
+/// Stream name, schema name, sensor, seq, log time and publish time of a record.
+fn describe(r: &Record) -> (&'static str, &'static str, &str, u64, u64, u64) {
+    match r {
+        Record::Raw {
+            sensor,
+            seq,
+            t_capture_ns,
+            ..
+        } => (
+            "raw",
+            RAW_SCHEMA,
+            sensor,
+            *seq,
+            *t_capture_ns,
+            *t_capture_ns,
+        ),
+        Record::Curvature {
+            sensor,
+            seq,
+            t_capture_ns,
+            ..
+        } => (
+            "curvature",
+            CURVATURE_SCHEMA,
+            sensor,
+            *seq,
+            *t_capture_ns,
+            *t_capture_ns,
+        ),
+        Record::Force {
+            sensor,
+            seq,
+            t_capture_ns,
+            t_publish_ns,
+            ..
+        } => (
+            "force",
+            FORCE_SCHEMA,
+            sensor,
+            *seq,
+            *t_capture_ns,
+            *t_publish_ns,
+        ),
+        Record::Reference {
+            sensor,
+            seq,
+            t_capture_ns,
+            ..
+        } => (
+            "reference",
+            REFERENCE_SCHEMA,
+            sensor,
+            *seq,
+            *t_capture_ns,
+            *t_capture_ns,
+        ),
+    }
+}
+
+/// The MCAP topic of a sensor's stream.
+pub fn topic(sensor: &str, stream: &str) -> String {
+    format!("/taxel/{sensor}/{stream}")
+}
+
+fn encode(r: &Record) -> Result<Vec<u8>, serde_json::Error> {
+    match r.clone() {
+        Record::Raw {
+            sensor,
+            seq,
+            t_capture_ns,
+            rows,
+            cols,
+            flags,
+            source,
+            full_scale,
+            counts,
+        } => serde_json::to_vec(&RawMsg {
+            sensor,
+            seq,
+            t_capture_ns,
+            rows,
+            cols,
+            flags,
+            source,
+            full_scale,
+            counts,
+        }),
+        Record::Curvature {
+            sensor,
+            seq,
+            t_capture_ns,
+            t_window_start_ns,
+            curvature_m1,
+            curvature_sd_m1,
+            model_version,
+            flags,
+            window_frames,
+            baseline,
+        } => serde_json::to_vec(&CurvatureMsg {
+            sensor,
+            seq,
+            t_capture_ns,
+            t_window_start_ns,
+            curvature_m1,
+            curvature_sd_m1,
+            model_version,
+            flags,
+            window_frames,
+            baseline,
+        }),
+        Record::Force {
+            sensor,
+            seq,
+            t_capture_ns,
+            t_publish_ns,
+            total_force_n,
+            total_reading,
+            curvature_m1,
+            cal_version,
+            cal_generation,
+            flags,
+            block_force_n,
+            block_reading,
+        } => serde_json::to_vec(&ForceMsg {
+            sensor,
+            seq,
+            t_capture_ns,
+            t_publish_ns,
+            total_force_n,
+            total_reading,
+            curvature_m1,
+            cal_version,
+            cal_generation,
+            flags,
+            block_force_n,
+            block_reading,
+        }),
+        Record::Reference {
+            sensor,
+            seq,
+            t_capture_ns,
+            t_source_s,
+            force_n,
+            curvature_m1,
+            temp_c,
+            trial,
+        } => serde_json::to_vec(&ReferenceMsg {
+            sensor,
+            seq,
+            t_capture_ns,
+            t_source_s,
+            force_n,
+            curvature_m1,
+            temp_c,
+            trial,
+        }),
+    }
+}
+
+fn decode(schema: &str, data: &[u8]) -> Result<Record, String> {
+    let e = |x: serde_json::Error| x.to_string();
+    Ok(match schema {
+        RAW_SCHEMA => {
+            let m: RawMsg = serde_json::from_slice(data).map_err(e)?;
+            Record::Raw {
+                sensor: m.sensor,
+                seq: m.seq,
+                t_capture_ns: m.t_capture_ns,
+                rows: m.rows,
+                cols: m.cols,
+                flags: m.flags,
+                source: m.source,
+                full_scale: m.full_scale,
+                counts: m.counts,
+            }
+        }
+        CURVATURE_SCHEMA => {
+            let m: CurvatureMsg = serde_json::from_slice(data).map_err(e)?;
+            Record::Curvature {
+                sensor: m.sensor,
+                seq: m.seq,
+                t_capture_ns: m.t_capture_ns,
+                t_window_start_ns: m.t_window_start_ns,
+                curvature_m1: m.curvature_m1,
+                curvature_sd_m1: m.curvature_sd_m1,
+                model_version: m.model_version,
+                flags: m.flags,
+                window_frames: m.window_frames,
+                baseline: m.baseline,
+            }
+        }
+        FORCE_SCHEMA => {
+            let m: ForceMsg = serde_json::from_slice(data).map_err(e)?;
+            Record::Force {
+                sensor: m.sensor,
+                seq: m.seq,
+                t_capture_ns: m.t_capture_ns,
+                t_publish_ns: m.t_publish_ns,
+                total_force_n: m.total_force_n,
+                total_reading: m.total_reading,
+                curvature_m1: m.curvature_m1,
+                cal_version: m.cal_version,
+                cal_generation: m.cal_generation,
+                flags: m.flags,
+                block_force_n: m.block_force_n,
+                block_reading: m.block_reading,
+            }
+        }
+        REFERENCE_SCHEMA => {
+            let m: ReferenceMsg = serde_json::from_slice(data).map_err(e)?;
+            Record::Reference {
+                sensor: m.sensor,
+                seq: m.seq,
+                t_capture_ns: m.t_capture_ns,
+                t_source_s: m.t_source_s,
+                force_n: m.force_n,
+                curvature_m1: m.curvature_m1,
+                temp_c: m.temp_c,
+                trial: m.trial,
+            }
+        }
+        other => return Err(format!("unknown schema {other:?}")),
+    })
+}
+
+/// Writes records into an MCAP file, creating schemas and channels as they first appear.
+pub struct McapRecordWriter {
+    w: ::mcap::Writer<BufWriter<File>>,
+    path: PathBuf,
+    schemas: HashMap<&'static str, u16>,
+    channels: HashMap<(String, &'static str), u16>,
+    written: u64,
+}
+
+impl McapRecordWriter {
+    pub fn create(path: &Path) -> Result<McapRecordWriter, McapError> {
+        let file = File::create(path).map_err(|source| McapError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let w = ::mcap::WriteOptions::new()
+            .compression(None)
+            .profile("")
+            .library(concat!("taxel/", env!("CARGO_PKG_VERSION")))
+            .create(BufWriter::new(file))
+            .map_err(|source| McapError::Mcap {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        Ok(McapRecordWriter {
+            w,
+            path: path.to_path_buf(),
+            schemas: HashMap::new(),
+            channels: HashMap::new(),
+            written: 0,
+        })
+    }
+
+    fn err(&self, source: ::mcap::McapError) -> McapError {
+        McapError::Mcap {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    /// Appends one record on its sensor's channel.
+    pub fn write(&mut self, r: &Record) -> Result<(), McapError> {
+        let (stream, schema_name, sensor, seq, log_time, publish_time) = describe(r);
+        let schema_id = match self.schemas.get(schema_name) {
+            Some(id) => *id,
+            None => {
+                let text = json_schema(schema_name).unwrap_or_default();
+                let id = self
+                    .w
+                    .add_schema(schema_name, "jsonschema", text.as_bytes())
+                    .map_err(|e| self.err(e))?;
+                self.schemas.insert(schema_name, id);
+                id
+            }
+        };
+        let key = (sensor.to_string(), stream);
+        let channel_id = match self.channels.get(&key) {
+            Some(id) => *id,
+            None => {
+                let mut meta = BTreeMap::new();
+                meta.insert("sensor".to_string(), sensor.to_string());
+                meta.insert("clock".to_string(), "CLOCK_MONOTONIC".to_string());
+                let id = self
+                    .w
+                    .add_channel(schema_id, &topic(sensor, stream), "json", &meta)
+                    .map_err(|e| self.err(e))?;
+                self.channels.insert(key, id);
+                id
+            }
+        };
+        let data = encode(r).map_err(|e| McapError::Message {
+            path: self.path.clone(),
+            index: self.written as usize,
+            topic: topic(sensor, stream),
+            reason: e.to_string(),
+        })?;
+        let header = ::mcap::records::MessageHeader {
+            channel_id,
+            sequence: seq as u32,
+            log_time,
+            publish_time,
+        };
+        self.w
+            .write_to_known_channel(&header, &data)
+            .map_err(|e| self.err(e))?;
+        self.written += 1;
+        Ok(())
+    }
+
+    /// Writes the summary and index; returns the number of messages.
+    pub fn finish(mut self) -> Result<u64, McapError> {
+        self.w.finish().map_err(|e| self.err(e))?;
+        Ok(self.written)
+    }
+}
+
+/// One message read back: its topic, log and publish times, and the record it carries.
+#[derive(Debug, Clone, PartialEq)]
+pub struct McapMessage {
+    pub topic: String,
+    pub log_time: u64,
+    pub publish_time: u64,
+    pub sequence: u32,
+    pub record: Record,
+}
+
+/// Reads every taxel message of an MCAP file, in file order. Channels with other schemas are
+/// an error naming the topic.
+pub fn read_messages(path: &Path) -> Result<Vec<McapMessage>, McapError> {
+    let bytes = std::fs::read(path).map_err(|source| McapError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let stream = ::mcap::MessageStream::new(&bytes).map_err(|source| McapError::Mcap {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let mut out = Vec::new();
+    for (index, m) in stream.enumerate() {
+        let m = m.map_err(|source| McapError::Mcap {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let topic = m.channel.topic.clone();
+        let schema = m.channel.schema.as_ref().map(|s| s.name.clone());
+        let record = match (m.channel.message_encoding.as_str(), schema) {
+            ("json", Some(schema)) => decode(&schema, &m.data),
+            (enc, _) => Err(format!("message encoding {enc:?} with no taxel schema")),
+        }
+        .map_err(|reason| McapError::Message {
+            path: path.to_path_buf(),
+            index,
+            topic: topic.clone(),
+            reason,
+        })?;
+        out.push(McapMessage {
+            topic,
+            log_time: m.log_time,
+            publish_time: m.publish_time,
+            sequence: m.sequence,
+            record,
+        });
+    }
+    Ok(out)
+}
+
+/// The raw channel of one sensor of an MCAP file, as a recording: `t_s` = `t_capture_ns` / 1e9,
+/// nodes = `counts`, reference columns from the reference channel (matched by `seq`; NaN where
+/// a frame has none) when the file has one.
+pub struct McapRecording {
+    pub recording: Recording,
+    pub sensor: String,
+    pub rows: usize,
+    pub cols: usize,
+    pub full_scale: f32,
+}
+
+/// Reads the raw frames of `sensor` (default: the only sensor with a raw channel).
+pub fn read_recording(path: &Path, sensor: Option<&str>) -> Result<McapRecording, McapError> {
+    let content = |reason: String| McapError::Content {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let msgs = read_messages(path)?;
+    let mut sensors: Vec<&str> = Vec::new();
+    for m in &msgs {
+        if let Record::Raw { sensor: s, .. } = &m.record {
+            if !sensors.contains(&s.as_str()) {
+                sensors.push(s);
+            }
+        }
+    }
+    let chosen = match sensor {
+        Some(want) if sensors.contains(&want) => want.to_string(),
+        Some(want) => {
+            return Err(content(format!(
+                "no raw channel for sensor {want:?} (raw channels: {sensors:?})"
+            )))
+        }
+        None if sensors.len() == 1 => sensors[0].to_string(),
+        None if sensors.is_empty() => return Err(content("no raw channel".into())),
+        None => {
+            return Err(content(format!(
+                "raw channels for several sensors {sensors:?}: choose one"
+            )))
+        }
+    };
+    let mut refs: HashMap<u64, (f64, f64, f64, i64)> = HashMap::new();
+    for m in &msgs {
+        if let Record::Reference {
+            sensor: s,
+            seq,
+            force_n,
+            curvature_m1,
+            temp_c,
+            trial,
+            ..
+        } = &m.record
+        {
+            if *s == chosen {
+                refs.insert(
+                    *seq,
+                    (
+                        *force_n as f64,
+                        *curvature_m1 as f64,
+                        *temp_c as f64,
+                        *trial as i64,
+                    ),
+                );
+            }
+        }
+    }
+    let has_ref = !refs.is_empty();
+    let mut rec = Recording {
+        path: path.to_path_buf(),
+        n_nodes: 0,
+        t_s: Vec::new(),
+        nodes: Vec::new(),
+        force_n: has_ref.then(Vec::new),
+        curvature_m1: has_ref.then(Vec::new),
+        temp_c: has_ref.then(Vec::new),
+        trial: has_ref.then(Vec::new),
+    };
+    let (mut rows, mut cols, mut full_scale) = (0usize, 0usize, 0f32);
+    for (index, m) in msgs.iter().enumerate() {
+        let Record::Raw {
+            sensor: s,
+            seq,
+            t_capture_ns,
+            rows: r,
+            cols: c,
+            full_scale: fs,
+            counts,
+            ..
+        } = &m.record
+        else {
+            continue;
+        };
+        if *s != chosen {
+            continue;
+        }
+        if rec.t_s.is_empty() {
+            (rows, cols, full_scale) = (*r as usize, *c as usize, *fs);
+            rec.n_nodes = counts.len();
+            if rec.n_nodes == 0 || rows * cols != rec.n_nodes {
+                return Err(McapError::Message {
+                    path: path.to_path_buf(),
+                    index,
+                    topic: m.topic.clone(),
+                    reason: format!("{} counts for a {r} x {c} array", counts.len()),
+                });
+            }
+        } else if (*r as usize, *c as usize) != (rows, cols) || counts.len() != rec.n_nodes {
+            return Err(McapError::Message {
+                path: path.to_path_buf(),
+                index,
+                topic: m.topic.clone(),
+                reason: format!(
+                    "{} counts for a {r} x {c} array after {rows} x {cols} frames",
+                    counts.len()
+                ),
+            });
+        }
+        rec.t_s.push(*t_capture_ns as f64 / 1e9);
+        rec.nodes.extend(counts.iter().map(|v| *v as f64));
+        let (f, cu, te, tr) = refs
+            .get(seq)
+            .copied()
+            .unwrap_or((f64::NAN, f64::NAN, f64::NAN, -1));
+        for (col, v) in [
+            (&mut rec.force_n, f),
+            (&mut rec.curvature_m1, cu),
+            (&mut rec.temp_c, te),
+        ] {
+            if let Some(c) = col {
+                c.push(v);
+            }
+        }
+        if let Some(t) = &mut rec.trial {
+            t.push(tr);
+        }
+    }
+    Ok(McapRecording {
+        recording: rec,
+        sensor: chosen,
+        rows,
+        cols,
+        full_scale,
+    })
+}
+
+/// True when the file starts with the MCAP magic.
+pub fn is_mcap(path: &Path) -> bool {
+    use std::io::Read;
+    let mut magic = [0u8; 8];
+    File::open(path)
+        .and_then(|mut f| f.read_exact(&mut magic))
+        .is_ok_and(|()| magic == ::mcap::MAGIC)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn records() -> Vec<Record> {
+        vec![
+            Record::Raw {
+                sensor: "s0".into(),
+                seq: 1,
+                t_capture_ns: 1_700_000_000_123_456_789,
+                rows: 2,
+                cols: 2,
+                flags: 0,
+                source: 0,
+                full_scale: 1023.0,
+                counts: vec![1.0, 2.5, 1023.0, f32::NAN],
+            },
+            Record::Reference {
+                sensor: "s0".into(),
+                seq: 1,
+                t_capture_ns: 1_700_000_000_123_456_789,
+                t_source_s: 0.25,
+                force_n: f32::NAN,
+                curvature_m1: 30.0,
+                temp_c: f32::NAN,
+                trial: -1,
+            },
+            Record::Force {
+                sensor: "glove-1".into(),
+                seq: 7,
+                t_capture_ns: 5,
+                t_publish_ns: 9,
+                total_force_n: 1.5,
+                total_reading: 400.0,
+                curvature_m1: 0.0,
+                cal_version: 3,
+                cal_generation: 2,
+                flags: 0b100,
+                block_force_n: vec![0.5, 1.0],
+                block_reading: vec![100.0, 300.0],
+            },
+            Record::Curvature {
+                sensor: "s0".into(),
+                seq: 2,
+                t_capture_ns: 10,
+                t_window_start_ns: 3,
+                curvature_m1: 29.75,
+                curvature_sd_m1: 0.5,
+                model_version: 1,
+                flags: 0,
+                window_frames: 50,
+                baseline: vec![500.0; 4],
+            },
+        ]
+    }
+
+    /// Field-by-field equality with NaN == NaN.
+    fn same(a: &Record, b: &Record) -> bool {
+        format!("{a:?}") == format!("{b:?}")
+    }
+
+    #[test]
+    fn round_trip_keeps_every_message() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("x.mcap");
+        let mut w = McapRecordWriter::create(&p).expect("create");
+        for r in records() {
+            w.write(&r).expect("write");
+        }
+        assert_eq!(w.finish().expect("finish"), 4);
+        assert!(is_mcap(&p));
+        let back = read_messages(&p).expect("read");
+        assert_eq!(back.len(), 4);
+        for (m, r) in back.iter().zip(records()) {
+            assert!(same(&m.record, &r), "{:?} != {r:?}", m.record);
+        }
+        assert_eq!(back[0].topic, "/taxel/s0/raw");
+        assert_eq!(back[0].log_time, 1_700_000_000_123_456_789);
+        assert_eq!(back[1].topic, "/taxel/s0/reference");
+        assert_eq!(back[2].topic, "/taxel/glove-1/force");
+        assert_eq!((back[2].log_time, back[2].publish_time), (5, 9));
+        assert_eq!(back[3].topic, "/taxel/s0/curvature");
+    }
+
+    #[test]
+    fn raw_channel_reads_as_a_recording() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("x.mcap");
+        let mut w = McapRecordWriter::create(&p).expect("create");
+        for r in records() {
+            w.write(&r).expect("write");
+        }
+        w.finish().expect("finish");
+        let r = read_recording(&p, None).expect("one raw sensor");
+        assert_eq!((r.sensor.as_str(), r.rows, r.cols), ("s0", 2, 2));
+        assert_eq!(r.full_scale, 1023.0);
+        assert_eq!(r.recording.len(), 1);
+        assert_eq!(&r.recording.sample(0)[..3], &[1.0, 2.5, 1023.0]);
+        assert_eq!(r.recording.curvature_m1.as_deref(), Some(&[30.0][..]));
+        assert_eq!(r.recording.trial.as_deref(), Some(&[-1][..]));
+        let e = read_recording(&p, Some("glove-1")).err().expect("no raw");
+        assert!(e.to_string().contains("glove-1"), "{e}");
+    }
+
+    #[test]
+    fn schemas_are_json() {
+        for s in [RAW_SCHEMA, CURVATURE_SCHEMA, FORCE_SCHEMA, REFERENCE_SCHEMA] {
+            let text = json_schema(s).expect("known");
+            let v: serde_json::Value = serde_json::from_str(&text).expect("valid JSON");
+            assert_eq!(v["type"], "object", "{s}");
+            assert!(v["properties"]["t_capture_ns"].is_object(), "{s}");
+        }
+        assert!(json_schema("nope").is_none());
+    }
+
+    #[test]
+    fn bad_files_are_errors_naming_the_file() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("bad.mcap");
+        std::fs::write(&p, b"not an mcap file at all").expect("write");
+        assert!(!is_mcap(&p));
+        let e = read_messages(&p).expect_err("bad");
+        assert!(e.to_string().contains("bad.mcap"), "{e}");
+        // A good file cut short.
+        let good = dir.path().join("good.mcap");
+        let mut w = McapRecordWriter::create(&good).expect("create");
+        for r in records() {
+            w.write(&r).expect("write");
+        }
+        w.finish().expect("finish");
+        let bytes = std::fs::read(&good).expect("read");
+        std::fs::write(&p, &bytes[..bytes.len() / 2]).expect("write");
+        assert!(read_messages(&p).is_err());
+    }
+}
