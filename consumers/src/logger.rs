@@ -16,7 +16,8 @@ use taxel_formats::mcap::McapRecordWriter;
 use taxel_formats::records::Tail;
 use taxel_formats::{Record, RecordFileReader, RecordFileWriter, RecordingWriter};
 use taxel_msgs::{
-    sensor_id_str, CurvatureEstimate, ForceSample, RawFrame, Reference, Stream, MAX_BLOCKS,
+    raw_flags, sensor_id_str, CurvatureEstimate, ForceSample, RawFrame, Reference, Stream,
+    MAX_BLOCKS,
 };
 use taxel_runtime::ipc::{self, Ipc, StreamSubscriber};
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
@@ -271,41 +272,80 @@ fn fill_reference(r: &mut Record, v: &Reference) {
 }
 
 /// Appends records, reporting write failures once per failure episode and counting what was
-/// lost, so the stream keeps running (e.g. on a full disk).
+/// lost, so the stream keeps running (e.g. on a full disk): the subscribers keep being drained,
+/// records that cannot be buffered are dropped and counted, and the next raw frame of a sensor
+/// that lost records is written with `GAP_BEFORE` so the file marks the gap. Records the
+/// writer already holds are not dropped: they reach the file, in order, once writing works
+/// again, so everything before the gap stays intact.
 struct Sink {
     w: RecordFileWriter,
     records: u64,
     lost: u64,
+    /// `lost` when the current failure episode began.
+    lost_at_failure: u64,
     failing: bool,
+    /// Per sensor: records were lost since its last written raw frame.
+    gap: Vec<bool>,
 }
 
 impl Sink {
-    fn append(&mut self, r: &Record) {
+    fn new(w: RecordFileWriter, sensors: usize) -> Sink {
+        Sink {
+            w,
+            records: 0,
+            lost: 0,
+            lost_at_failure: 0,
+            failing: false,
+            gap: vec![false; sensors],
+        }
+    }
+
+    fn fail(&mut self, what: &str, e: &taxel_formats::records::RecordError) {
+        if !self.failing {
+            error!(
+                "logger cannot {what} ({e}); the stream keeps running, records that do not fit \
+                 the buffer are counted as lost and the gap is marked in the file"
+            );
+            self.failing = true;
+            self.lost_at_failure = self.lost;
+        }
+    }
+
+    /// Appends a record of sensor `i` (raw frames get `GAP_BEFORE` after a loss).
+    fn append(&mut self, i: usize, r: &mut Record) {
+        let is_raw = matches!(r, Record::Raw { .. });
+        if is_raw && self.gap[i] {
+            if let Record::Raw { flags, .. } = r {
+                *flags |= raw_flags::GAP_BEFORE;
+            }
+        }
         match self.w.append(r) {
-            Ok(()) => self.records += 1,
+            Ok(()) => {
+                self.records += 1;
+                if is_raw {
+                    self.gap[i] = false;
+                }
+            }
             Err(e) => {
                 self.lost += 1;
-                if !self.failing {
-                    error!("logger cannot write ({e}); the stream keeps running, records are counted as lost");
-                    self.failing = true;
-                }
+                self.gap[i] = true;
+                self.fail("write", &e);
             }
         }
     }
+
     fn flush(&mut self) {
         match self.w.flush() {
             Ok(()) => {
                 if self.failing {
-                    info!("logger writes again");
+                    info!(
+                        lost = self.lost - self.lost_at_failure,
+                        "logger writes again; the records lost meanwhile are marked as a gap"
+                    );
                     self.failing = false;
                 }
             }
-            Err(e) => {
-                if !self.failing {
-                    error!("logger cannot flush ({e}); the stream keeps running");
-                    self.failing = true;
-                }
-            }
+            Err(e) => self.fail("flush", &e),
         }
     }
 }
@@ -321,6 +361,8 @@ fn record(common: &CommonArgs, a: RecordArgs) -> Result<(), Failure> {
         )));
     }
     let writer = RecordFileWriter::create(&a.out).config_err()?;
+    // Past a file-size limit a write then fails (EFBIG) like on a full disk, and is handled.
+    taxel_runtime::signals::ignore_file_size_signal();
     let shutdown = Shutdown::install().runtime_err()?;
     let ipc = Ipc::open(&common.prefix, "logger").runtime_err()?;
     let mut subs = Vec::new();
@@ -348,12 +390,7 @@ fn record(common: &CommonArgs, a: RecordArgs) -> Result<(), Failure> {
             );
         }
     }
-    let mut sink = Sink {
-        w: writer,
-        records: 0,
-        lost: 0,
-        failing: false,
-    };
+    let mut sink = Sink::new(writer, subs.len());
     let mut scratch = Scratch::new();
     let flush_every = Duration::from_millis(a.flush_ms);
     let tick = flush_every.min(ipc::TICK);
@@ -375,25 +412,25 @@ fn record(common: &CommonArgs, a: RecordArgs) -> Result<(), Failure> {
                     if hit(0) {
                         r = r.and(s.raw.drain(|f| {
                             fill_raw(&mut scratch.raw, f);
-                            sink.append(&scratch.raw);
+                            sink.append(i, &mut scratch.raw);
                         }));
                     }
                     if hit(1) {
                         r = r.and(s.curvature.drain(|e| {
                             fill_curvature(&mut scratch.curvature, e);
-                            sink.append(&scratch.curvature);
+                            sink.append(i, &mut scratch.curvature);
                         }));
                     }
                     if hit(2) {
                         r = r.and(s.force.drain(|f| {
                             fill_force(&mut scratch.force, f);
-                            sink.append(&scratch.force);
+                            sink.append(i, &mut scratch.force);
                         }));
                     }
                     if hit(3) {
                         r = r.and(s.reference.drain(|v| {
                             fill_reference(&mut scratch.reference, v);
-                            sink.append(&scratch.reference);
+                            sink.append(i, &mut scratch.reference);
                         }));
                     }
                     if let Err(e) = r {
@@ -415,7 +452,14 @@ fn record(common: &CommonArgs, a: RecordArgs) -> Result<(), Failure> {
     let Sink {
         w, records, lost, ..
     } = sink;
-    let bytes = w.finish().runtime_err()?;
+    let bytes = w
+        .finish()
+        .map_err(|e| {
+            anyhow::anyhow!(
+                "{e} ({records} records written, {lost} lost, the last buffered ones not written)"
+            )
+        })
+        .runtime_err()?;
     if let Some(e) = failure {
         return Err(Failure::runtime(e));
     }

@@ -1,0 +1,190 @@
+//! Disk full while logging, without root: the test lowers the running logger's file-size limit
+//! (RLIMIT_FSIZE, through prlimit(2)) so its writes fail with EFBIG as on a full disk, then
+//! raises it again ("space returns"). The logger must report it once, keep draining its
+//! subscribers (a probe on the same stream loses nothing), write again afterwards, and leave a
+//! file that reads back cleanly: every record intact, the gap marked with GAP_BEFORE on the
+//! first raw frame after it, and no other hole in the frame sequence.
+
+mod common;
+
+use std::time::Duration;
+
+use common::{spawn_ready, unique_prefix};
+use taxel_formats::records::Tail;
+use taxel_formats::{Record, RecordFileReader};
+use taxel_msgs::raw_flags;
+
+/// Sets the soft file-size limit of process `pid` (the hard limit stays as it is).
+fn set_fsize_limit(pid: u32, bytes: Option<u64>) {
+    let mut old = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: prlimit(2) on our own child with valid pointers.
+    let r = unsafe {
+        libc::prlimit(
+            pid as libc::pid_t,
+            libc::RLIMIT_FSIZE,
+            std::ptr::null(),
+            &mut old,
+        )
+    };
+    assert_eq!(r, 0, "prlimit get: {}", std::io::Error::last_os_error());
+    let new = libc::rlimit {
+        rlim_cur: bytes.map_or(old.rlim_max, |b| b as libc::rlim_t),
+        rlim_max: old.rlim_max,
+    };
+    // SAFETY: as above.
+    let r = unsafe {
+        libc::prlimit(
+            pid as libc::pid_t,
+            libc::RLIMIT_FSIZE,
+            &new,
+            std::ptr::null_mut(),
+        )
+    };
+    assert_eq!(r, 0, "prlimit set: {}", std::io::Error::last_os_error());
+}
+
+#[test]
+fn logger_survives_a_full_disk_and_marks_the_gap() {
+    let prefix = unique_prefix("df");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rec = dir.path().join("run.taxrec");
+    let rec_s = rec.display().to_string();
+    let limit = Duration::from_secs(20);
+    const FULL_AT: u64 = 96 * 1024;
+
+    let mut logger = spawn_ready(
+        "logger",
+        &prefix,
+        &[
+            "logger",
+            "record",
+            "--sensor",
+            "s0",
+            "--out",
+            &rec_s,
+            "--flush-ms",
+            "50",
+        ],
+        "logger ready",
+    );
+    // The disk "fills up" at FULL_AT bytes.
+    set_fsize_limit(logger.child.id(), Some(FULL_AT));
+    let mut probe = spawn_ready(
+        "latency",
+        &prefix,
+        &[
+            "latency",
+            "--sensor",
+            "s0",
+            "--stream",
+            "raw",
+            "--json",
+            "--seconds",
+            "6",
+        ],
+        "latency probe ready",
+    );
+    let mut publisher = spawn_ready(
+        "publisher",
+        &prefix,
+        &[
+            "publisher",
+            "--sensor",
+            "s0",
+            "--seconds",
+            "8",
+            "sim",
+            "--rate-hz",
+            "1000",
+        ],
+        "publisher ready",
+    );
+    logger.wait_for("logger cannot", limit);
+    // Let the writer's buffer fill so records are really lost, then free space again.
+    std::thread::sleep(Duration::from_millis(2500));
+    set_fsize_limit(logger.child.id(), None);
+    logger.wait_for("logger writes again", limit);
+
+    let st = publisher.wait_exit(limit);
+    assert!(st.success(), "publisher: {st}\n{}", publisher.output());
+    let st = probe.wait_exit(limit);
+    assert!(st.success(), "latency: {st}\n{}", probe.output());
+    logger.sigint();
+    let st = logger.wait_exit(limit);
+    let log = logger.output();
+    assert!(st.success(), "logger: {st}\n{log}");
+
+    // Reported once per episode, not per record.
+    let errors = log.lines().filter(|l| l.contains("logger cannot")).count();
+    assert_eq!(errors, 1, "{log}");
+    let resumed = log
+        .lines()
+        .find(|l| l.contains("logger writes again"))
+        .expect("resume line");
+    let lost: u64 = resumed
+        .split("lost=")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no lost= in {resumed:?}"));
+    assert!(
+        lost > 0,
+        "nothing was lost while the disk was full: {resumed}"
+    );
+
+    // The stream stayed alive for everyone else: the probe on the raw stream lost nothing.
+    let out = probe.output();
+    let json = out
+        .lines()
+        .find(|l| l.starts_with('{'))
+        .unwrap_or_else(|| panic!("no JSON from the probe:\n{out}"));
+    assert!(json.contains("\"dropped\": 0,"), "{json}");
+
+    // The file reads back cleanly to its end: nothing written before the failure is damaged.
+    let size = std::fs::metadata(&rec).expect("record file").len();
+    assert!(
+        size > FULL_AT,
+        "the logger did not write again ({size} bytes)"
+    );
+    let mut reader = RecordFileReader::open(&rec).expect("open record file");
+    let mut seqs = Vec::new();
+    let mut gap_marks = Vec::new();
+    for r in reader.by_ref() {
+        if let Record::Raw { seq, flags, .. } = r {
+            if flags & raw_flags::GAP_BEFORE != 0 {
+                gap_marks.push(seqs.len());
+            }
+            seqs.push(seq);
+        }
+    }
+    assert_eq!(reader.tail(), Some(&Tail::Clean), "file damaged");
+    assert!(seqs.len() > 1000, "only {} raw frames", seqs.len());
+    // Frames in order; every hole in the sequence is marked, and there is at least one.
+    let mut holes = Vec::new();
+    for k in 1..seqs.len() {
+        assert!(seqs[k] > seqs[k - 1], "out of order at frame {k}");
+        if seqs[k] != seqs[k - 1] + 1 {
+            holes.push(k);
+        }
+    }
+    assert!(
+        !holes.is_empty(),
+        "no frame was lost although {lost} records were"
+    );
+    for h in &holes {
+        assert!(
+            gap_marks.contains(h),
+            "unmarked hole before frame {h} (seq {} -> {}); marks at {gap_marks:?}",
+            seqs[h - 1],
+            seqs[*h]
+        );
+    }
+    eprintln!(
+        "disk full: {} raw frames in {size} bytes, {} hole(s) at {holes:?}, {lost} records lost",
+        seqs.len(),
+        holes.len()
+    );
+}
