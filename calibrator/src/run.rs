@@ -178,6 +178,7 @@ pub fn run(
     let mut summary = Summary::default();
     let mut seq = SeqTracker::default();
     let mut mismatch_reported = false;
+    let mut gap_first = taxel_runtime::process::restarted();
     let mut last_report = Instant::now();
     let mut frames_at_report = 0;
     let wake = receive_loop(
@@ -212,8 +213,13 @@ pub fn run(
                 }
                 return Ok(());
             }
-            seq.observe(frame.seq);
+            let gap = seq.observe(frame.seq) > 0;
             cal.apply(frame, now_ns(), &mut out);
+            if gap || gap_first {
+                // Frames were dropped before this one, or the previous calibrator died.
+                out.flags |= taxel_msgs::force_flags::GAP_BEFORE;
+                gap_first = false;
+            }
             out.t_publish_ns = now_ns();
             force.send(&out)?;
             summary.frames += 1;

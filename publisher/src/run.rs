@@ -66,6 +66,7 @@ pub fn publish(
     let mut summary = Summary::default();
     let mut last_report = start;
     let mut frames_at_report = 0u64;
+    let mut gap_first = taxel_runtime::process::restarted();
     // Pace with ~1 us precision instead of the default 50 us timer slack: consumers that
     // predict the next frame (adaptive wake-up) rely on a regular stream.
     // SAFETY: prctl(PR_SET_TIMERSLACK) only changes this thread's timer slack.
@@ -106,6 +107,11 @@ pub fn publish(
         }
         frame.t_capture_ns = now_ns();
         frame.flags = 0;
+        if gap_first {
+            // Frames were lost while the previous incarnation was down.
+            frame.flags |= raw_flags::GAP_BEFORE;
+            gap_first = false;
+        }
         if frame.full_scale > 0.0 && frame.counts[..n].iter().any(|&c| c >= frame.full_scale) {
             frame.flags |= raw_flags::RAIL;
         }

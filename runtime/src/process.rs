@@ -10,6 +10,15 @@ use std::time::Duration;
 /// down instead of running on as an orphan.
 pub const PARENT_PID_ENV: &str = "TAXEL_PARENT_PID";
 
+/// Environment variable a supervisor sets on a restarted process (its restart count): sources
+/// and the calibrator flag their first sample after a restart with a gap.
+pub const RESTART_ENV: &str = "TAXEL_RESTART";
+
+/// Whether this process was started by a supervisor as the replacement of a dead one.
+pub fn restarted() -> bool {
+    std::env::var_os(RESTART_ENV).is_some_and(|v| !v.is_empty() && v != "0")
+}
+
 /// Flags every process takes.
 #[derive(Debug, Clone, clap::Args)]
 pub struct CommonArgs {

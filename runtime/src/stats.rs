@@ -9,10 +9,13 @@ pub struct SeqTracker {
     pub dropped: u64,
     /// Frames received.
     pub received: u64,
+    /// Times the sequence started over (a restarted source counts from 0 again).
+    pub restarts: u64,
 }
 
 impl SeqTracker {
-    /// Records `seq`; returns how many frames were skipped before it.
+    /// Records `seq`; returns how many frames were skipped before it. A sequence number at or
+    /// below the last one is a restarted source: counting starts over from it.
     pub fn observe(&mut self, seq: u64) -> u64 {
         self.received += 1;
         let gap = match self.last {
@@ -20,9 +23,10 @@ impl SeqTracker {
             _ => 0,
         };
         self.dropped += gap;
-        if self.last.is_none_or(|l| seq > l) {
-            self.last = Some(seq);
+        if self.last.is_some_and(|l| seq <= l) {
+            self.restarts += 1;
         }
+        self.last = Some(seq);
         gap
     }
 }
@@ -38,5 +42,14 @@ mod tests {
             t.observe(s);
         }
         assert_eq!((t.received, t.dropped), (6, 5));
+    }
+
+    #[test]
+    fn a_restarted_source_starts_the_count_over() {
+        let mut t = SeqTracker::default();
+        for s in [100, 101, 0, 1, 3] {
+            t.observe(s);
+        }
+        assert_eq!((t.received, t.dropped, t.restarts), (5, 1, 1));
     }
 }
