@@ -1,8 +1,8 @@
 //! An example grip-force controller: a PI loop on the total force toward a target, driving a
 //! simple simulated hand (first-order grip actuator). It wakes on every ForceSample (WaitSet),
 //! measures the sample's age (now - t_capture_ns), counts deadline misses and dropped frames,
-//! and goes to a safe state (holds the grip command) when samples are invalid, flagged, or stop
-//! arriving. Once a second it prints a status line; at exit, a summary.
+//! and goes to a safe state (holds the grip command) when samples are invalid, flagged, older
+//! than the deadline (stale: never used as fresh), or stop arriving. Once a second it prints a status line; at exit, a summary.
 
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -35,7 +35,8 @@ pub struct Args {
     /// Integral gain (command per N s).
     #[arg(long, default_value_t = 0.5)]
     pub ki: f64,
-    /// A sample older than this at arrival is a deadline miss (ms).
+    /// A sample older than this at arrival is stale: a deadline miss, never used to drive the
+    /// hand (safe state) (ms).
     #[arg(long, default_value_t = 5.0)]
     pub deadline_ms: f64,
     /// No sample for this long puts the hand in its safe state (ms).
@@ -106,6 +107,8 @@ struct State {
     safe: bool,
     safe_entries: u64,
     last_t: Option<u64>,
+    /// The last sample was older than the deadline.
+    last_stale: bool,
 }
 
 impl State {
@@ -120,17 +123,19 @@ impl State {
         let age = now_ns().saturating_sub(f.t_capture_ns);
         self.total.record_ns(age);
         self.window.record_ns(age);
-        if age > deadline_ns {
+        let stale = age > deadline_ns;
+        if stale {
             self.misses += 1;
         }
         self.seq.observe(f.seq);
+        self.last_stale = stale;
         self.window_samples += 1;
         self.last = Some(*f);
         let dt = self
             .last_t
             .map_or(0.0, |t| f.t_capture_ns.saturating_sub(t) as f64 * 1e-9);
         self.last_t = Some(f.t_capture_ns);
-        if f.flags & UNSAFE_FLAGS != 0 || !f.total_force_n.is_finite() {
+        if stale || f.flags & UNSAFE_FLAGS != 0 || !f.total_force_n.is_finite() {
             self.enter_safe();
         } else {
             self.safe = false;
@@ -166,6 +171,9 @@ impl State {
             if f.flags & bit != 0 {
                 flags.push(name);
             }
+        }
+        if self.last_stale {
+            flags.push("STALE");
         }
         format!(
             "[{sensor}] {hz:6.1} Hz | C {:5.1} 1/m{c_note} | {blocks}array {:5.2} N | cal v{} gen {} | age p50 {:6.1} us p99 {:6.1} us | dropped {} | misses {} | grip {:.2} {}{}",
@@ -227,6 +235,7 @@ fn run(a: Args) -> Result<(), Failure> {
         safe: true,
         safe_entries: 0,
         last_t: None,
+        last_stale: false,
     });
     let last_arrival = std::cell::Cell::new(now_ns());
     let start = Instant::now();
@@ -273,11 +282,12 @@ fn run(a: Args) -> Result<(), Failure> {
         return Err(Failure::runtime(e));
     }
     println!(
-        "[{}] summary: {} samples in {:.1} s, dropped {}, age p50 {:.1} us p99 {:.1} us max {:.1} us, deadline misses {} (> {} ms), safe-state entries {}",
+        "[{}] summary: {} samples in {:.1} s, dropped {}, source restarts {}, age p50 {:.1} us p99 {:.1} us max {:.1} us, deadline misses {} (> {} ms), safe-state entries {}",
         a.sensor,
         st.seq.received,
         start.elapsed().as_secs_f64(),
         st.seq.dropped,
+        st.seq.restarts,
         st.total.percentile_us(50.0),
         st.total.percentile_us(99.0),
         st.total.max_us(),
@@ -311,6 +321,53 @@ mod tests {
             "{}",
             hand.position
         );
+    }
+
+    fn state() -> State {
+        State {
+            pi: Pi {
+                kp: 0.05,
+                ki: 0.5,
+                integral: 0.0,
+            },
+            hand: Hand::default(),
+            seq: SeqTracker::default(),
+            total: AgeHistogram::new(),
+            window: AgeHistogram::new(),
+            window_samples: 0,
+            last: None,
+            misses: 0,
+            safe: true,
+            safe_entries: 0,
+            last_t: None,
+            last_stale: false,
+        }
+    }
+
+    #[test]
+    fn a_sample_older_than_the_deadline_is_stale_and_never_drives_the_hand() {
+        let mut st = state();
+        let deadline_ns = 5_000_000;
+        let mut f = ForceSample::ZERO;
+        f.total_force_n = 1.0;
+        f.t_capture_ns = now_ns();
+        st.on_sample(&f, 4.0, deadline_ns);
+        assert!(!st.safe, "a fresh, unflagged sample drives the hand");
+        let command = st.hand.command;
+        assert!(command > 0.0);
+        // 20 ms old: stale.
+        f.seq = 1;
+        f.total_force_n = 0.0;
+        f.t_capture_ns = now_ns() - 20_000_000;
+        st.on_sample(&f, 4.0, deadline_ns);
+        assert!(st.safe && st.last_stale);
+        assert_eq!((st.misses, st.safe_entries), (1, 1));
+        assert_eq!(
+            st.hand.command, command,
+            "the stale sample did not move the command"
+        );
+        assert!(st.status_line("s0", 1.0).contains("STALE"));
+        assert!(st.status_line("s0", 1.0).contains("SAFE"));
     }
 
     #[test]
