@@ -1,12 +1,13 @@
 //! Child processes of the launcher: each role runs as `taxel <role> ...` (this executable), in
 //! its own process group so a terminal Ctrl-C reaches only the launcher, which then stops the
-//! children in order. Children watch the launcher's pid and stop if it disappears.
+//! children in order. Children watch the launcher's pid and stop if it disappears. Also: exit
+//! reasons for logs and peak memory from /proc.
 
 use std::os::unix::process::CommandExt;
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use taxel_runtime::process::PARENT_PID_ENV;
+use taxel_runtime::process::{PARENT_PID_ENV, RESTART_ENV};
 
 /// A running child.
 pub struct Proc {
@@ -17,13 +18,14 @@ pub struct Proc {
     pub status: Option<ExitStatus>,
 }
 
-/// Starts `taxel <args...>` as a child.
+/// Starts `taxel <args...>` as a child; `restart` > 0 is passed as [`RESTART_ENV`].
 pub fn spawn(
     name: &str,
     stage: u8,
     args: &[String],
     prefix: &str,
     log: &str,
+    restart: u32,
 ) -> anyhow::Result<Proc> {
     let exe = std::env::current_exe()?;
     let mut cmd = Command::new(exe);
@@ -33,6 +35,11 @@ pub fn spawn(
         .env("RUST_LOG", log)
         .stdin(Stdio::null())
         .process_group(0);
+    if restart > 0 {
+        cmd.env(RESTART_ENV, restart.to_string());
+    } else {
+        cmd.env_remove(RESTART_ENV);
+    }
     let child = cmd
         .spawn()
         .map_err(|e| anyhow::anyhow!("cannot start {name}: {e}"))?;
@@ -69,9 +76,49 @@ impl Proc {
     }
 }
 
+/// Why a child ended, for logs: `exit 1`, `SIGKILL`, ...
+pub fn exit_reason(st: ExitStatus) -> String {
+    use std::os::unix::process::ExitStatusExt;
+    if let Some(c) = st.code() {
+        return format!("exit {c}");
+    }
+    match st.signal() {
+        Some(sig) => signal_name(sig),
+        None => st.to_string(),
+    }
+}
+
+/// The name of a signal number (`SIGKILL`), or `signal N`.
+pub fn signal_name(sig: i32) -> String {
+    let name = match sig {
+        libc::SIGHUP => "SIGHUP",
+        libc::SIGINT => "SIGINT",
+        libc::SIGQUIT => "SIGQUIT",
+        libc::SIGILL => "SIGILL",
+        libc::SIGABRT => "SIGABRT",
+        libc::SIGBUS => "SIGBUS",
+        libc::SIGFPE => "SIGFPE",
+        libc::SIGKILL => "SIGKILL",
+        libc::SIGSEGV => "SIGSEGV",
+        libc::SIGPIPE => "SIGPIPE",
+        libc::SIGTERM => "SIGTERM",
+        _ => return format!("signal {sig}"),
+    };
+    name.to_string()
+}
+
+/// Peak resident memory (VmHWM) of a process in KiB, from /proc.
+pub fn peak_rss_kib(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+}
+
 /// Stops children stage by stage with SIGINT, waiting up to `grace` per stage before SIGKILL.
 /// Returns the names of children that had to be killed.
-pub fn stop_all(procs: &mut [Proc], grace: Duration) -> Vec<String> {
+pub fn stop_all(procs: &mut [&mut Proc], grace: Duration) -> Vec<String> {
     let mut killed = Vec::new();
     let mut stages: Vec<u8> = procs.iter().map(|p| p.stage).collect();
     stages.sort_unstable();
@@ -106,4 +153,18 @@ pub fn stop_all(procs: &mut [Proc], grace: Duration) -> Vec<String> {
         }
     }
     killed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exit_reasons_name_codes_and_signals() {
+        use std::os::unix::process::ExitStatusExt;
+        assert_eq!(exit_reason(ExitStatus::from_raw(1 << 8)), "exit 1");
+        assert_eq!(exit_reason(ExitStatus::from_raw(libc::SIGKILL)), "SIGKILL");
+        assert_eq!(signal_name(64), "signal 64");
+        assert!(peak_rss_kib(std::process::id()).is_some_and(|k| k > 0));
+    }
 }

@@ -1,6 +1,7 @@
-//! `taxel demo`: a simulated glove (or one sensor) streaming through separate processes.
+//! `taxel demo`: a simulated glove (or one sensor) streaming through separate processes: an
+//! in-memory [`Pipeline`] run by the same supervisor as `taxel up`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -8,14 +9,15 @@ use taxel_runtime::ipc;
 use taxel_runtime::process::init_tracing;
 use taxel_runtime::Shutdown;
 
-use crate::children::{spawn, stop_all, Proc};
+use crate::pipeline::{Control, Logger, Pipeline, Sensor, Source, Supervision};
+use crate::supervise::Supervisor;
 
 /// The shipped default calibration of the simulated sensor.
-const SIM_CALIBRATION: &str = include_str!("../calibrations/sim-default.toml");
+pub const SIM_CALIBRATION: &str = include_str!("../calibrations/sim-default.toml");
 /// The shipped curvature model, trained on the simulator's paper-like dataset (seed 1).
-const CURVATURE_MODEL: &[u8] = include_bytes!("../models/curvature-default.taxcrv");
+pub const CURVATURE_MODEL: &[u8] = include_bytes!("../models/curvature-default.taxcrv");
 /// Build seeds of the three sensors of that dataset: the demo's sensors are those builds.
-const DATASET_BUILDS: [u64; 3] = [1001, 1002, 1003];
+pub const DATASET_BUILDS: [u64; 3] = [1001, 1002, 1003];
 
 const FINGERS: [&str; 5] = ["thumb", "index", "middle", "ring", "little"];
 /// Mounting curvature of each fingertip of the demo glove (1/m).
@@ -47,7 +49,7 @@ pub struct DemoArgs {
     pub log: String,
 }
 
-fn sensor_names(n: usize) -> Vec<(String, f64)> {
+pub fn sensor_names(n: usize) -> Vec<(String, f64)> {
     if n == 5 {
         FINGERS
             .iter()
@@ -70,10 +72,6 @@ pub fn main(a: DemoArgs) -> ExitCode {
             ExitCode::from(2)
         }
     }
-}
-
-fn s(v: impl ToString) -> String {
-    v.to_string()
 }
 
 fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
@@ -111,174 +109,77 @@ fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))?;
     let recording = out.join("demo.taxrec");
     let shutdown = Shutdown::install()?;
-    let sensors = sensor_names(a.sensors);
-    let cleaned = ipc::clean_dead_nodes(&a.prefix).unwrap_or(0);
-    if cleaned > 0 {
-        println!(
-            "cleaned stale resources of {cleaned} dead node(s) under prefix {}",
-            a.prefix
-        );
-    }
+    let pipeline = demo_pipeline(a.sensors, a.rate_hz, &cal, &model, &recording, &a.log);
     println!(
         "taxel demo: {} simulated sensor(s) at {} Hz, prefix {:?}\n  calibration {} (edit it: the calibrators reload it)\n  recording   {}\n  Ctrl-C stops{}",
-        sensors.len(),
+        pipeline.sensors.len(),
         a.rate_hz,
         a.prefix,
         cal.display(),
         recording.display(),
         a.seconds.map_or(String::new(), |s| format!(" (or after {s} s)"))
     );
-    let mut procs: Vec<Proc> = Vec::new();
-    let names: Vec<String> = sensors.iter().map(|x| x.0.clone()).collect();
-    let started = (|| -> anyhow::Result<()> {
-        // Consumers first, sources last, so nothing published is missed.
-        procs.push(spawn(
-            "logger",
-            0,
-            &[
-                s("logger"),
-                s("record"),
-                s("--sensor"),
-                names.join(","),
-                s("--out"),
-                recording.display().to_string(),
-            ],
-            &a.prefix,
-            &a.log,
-        )?);
-        for (i, (name, curvature)) in sensors.iter().enumerate() {
-            procs.push(spawn(
-                &format!("control-{name}"),
-                0,
-                &[s("control"), s("--sensor"), name.clone()],
-                &a.prefix,
-                &a.log,
-            )?);
-            procs.push(spawn(
-                &format!("calibrator-{name}"),
-                1,
-                &[
-                    s("calibrator"),
-                    s("run"),
-                    s("--sensor"),
-                    name.clone(),
-                    s("--calibration"),
-                    cal.display().to_string(),
-                ],
-                &a.prefix,
-                &a.log,
-            )?);
-            procs.push(spawn(
-                &format!("estimator-{name}"),
-                2,
-                &[
-                    s("estimator"),
-                    s("run"),
-                    s("--sensor"),
-                    name.clone(),
-                    s("--model"),
-                    model.display().to_string(),
-                ],
-                &a.prefix,
-                &a.log,
-            )?);
-            procs.push(spawn(
-                &format!("publisher-{name}"),
-                3,
-                &[
-                    s("publisher"),
-                    s("--sensor"),
-                    name.clone(),
-                    s("sim"),
-                    s("--preset"),
-                    s("paper-dataset"),
-                    s("--build-seed"),
-                    DATASET_BUILDS[i % DATASET_BUILDS.len()].to_string(),
-                    s("--seed"),
-                    (i + 1).to_string(),
-                    s("--rate-hz"),
-                    a.rate_hz.to_string(),
-                    s("--curvature-m1"),
-                    curvature.to_string(),
-                ],
-                &a.prefix,
-                &a.log,
-            )?);
-        }
-        Ok(())
-    })();
-    let t0 = Instant::now();
-    let mut failed: Option<String> = started.err().map(|e| format!("{e:#}"));
-    while failed.is_none() && !shutdown.requested() {
-        if a.seconds.is_some_and(|s| t0.elapsed().as_secs_f64() >= s) {
-            break;
-        }
-        for p in procs.iter_mut() {
-            if let Some(st) = p.poll() {
-                failed = Some(format!(
-                    "{} (pid {}) exited unexpectedly with {st}",
-                    p.name,
-                    p.pid()
-                ));
-                break;
-            }
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    if let Some(f) = &failed {
-        eprintln!("taxel demo: {f}; stopping the pipeline");
-    }
-    let killed = stop_all(&mut procs, Duration::from_secs(5));
-    println!(
-        "\ntaxel demo summary after {:.1} s:",
-        t0.elapsed().as_secs_f64()
-    );
-    let mut all_ok = failed.is_none() && killed.is_empty();
-    for p in &procs {
-        let st = p
-            .status
-            .map_or("still running?".to_string(), |s| s.to_string());
-        let ok = p.status.is_some_and(|s| s.success());
-        all_ok &= ok;
-        println!(
-            "  {:<22} {}",
-            p.name,
-            if ok { "exited 0".to_string() } else { st }
-        );
-    }
-    for k in &killed {
-        println!("  {k} did not stop within 5 s and was killed");
-    }
-    match ipc::count_nodes(&a.prefix) {
-        Ok((0, 0)) => {
-            let released = ipc::release_prefix(&a.prefix).unwrap_or(false);
-            println!(
-                "  shared memory: no iceoryx2 nodes left under prefix {:?}{}",
-                a.prefix,
-                if released {
-                    "; prefix segment released"
-                } else {
-                    ""
-                }
-            );
-        }
-        Ok((alive, dead)) => {
-            let cleaned = ipc::clean_dead_nodes(&a.prefix).unwrap_or(0);
-            println!(
-                "  shared memory: {alive} node(s) still alive, {dead} dead (cleaned {cleaned})"
-            );
-            all_ok &= alive == 0;
-        }
-        Err(e) => println!("  shared memory: cannot list nodes: {e}"),
-    }
+    let mut sup = Supervisor::start(&a.prefix, &a.log, pipeline.policy(), pipeline.processes())?;
+    let until = a
+        .seconds
+        .map(|s| Instant::now() + Duration::from_secs_f64(s));
+    sup.run(&shutdown, until, |_| {});
+    let code = crate::up::finish("demo", &mut sup);
     println!(
         "  recording: {} (export: taxel logger export {} --csv out.csv)",
         recording.display(),
         recording.display()
     );
-    Ok(if all_ok {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::from(1)
-    })
+    Ok(code)
+}
+
+/// The demo's pipeline: `n` simulated sensors (a glove for 5) with the shipped curvature model
+/// and one shared calibration file, a control loop per sensor and a logger.
+pub fn demo_pipeline(
+    n: usize,
+    rate_hz: f64,
+    calibration: &Path,
+    model: &Path,
+    recording: &Path,
+    log: &str,
+) -> Pipeline {
+    let sensors: Vec<Sensor> = sensor_names(n)
+        .into_iter()
+        .enumerate()
+        .map(|(i, (id, curvature))| Sensor {
+            id,
+            source: Source::Sim {
+                scenario: None,
+                preset: Some("paper-dataset".to_string()),
+                build_seed: Some(DATASET_BUILDS[i % DATASET_BUILDS.len()]),
+                seed: Some(i as u64 + 1),
+                rate_hz: Some(rate_hz),
+                curvature_m1: Some(curvature),
+            },
+            calibration: calibration.to_path_buf(),
+            model: Some(model.to_path_buf()),
+            curvature_m1: None,
+        })
+        .collect();
+    Pipeline {
+        prefix: None,
+        log: log.to_string(),
+        supervision: Supervision::default(),
+        controls: sensors
+            .iter()
+            .map(|x| Control {
+                sensor: x.id.clone(),
+                target_n: None,
+                wake: None,
+                status: true,
+            })
+            .collect(),
+        logger: Some(Logger {
+            out: recording.to_path_buf(),
+            sensors: Vec::new(),
+            flush_ms: None,
+        }),
+        latencies: Vec::new(),
+        sensors,
+    }
 }

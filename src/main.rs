@@ -6,6 +6,10 @@ mod bench;
 mod children;
 mod demo;
 mod evaluate;
+mod pipeline;
+mod soak;
+mod supervise;
+mod up;
 
 use std::process::ExitCode;
 
@@ -24,6 +28,12 @@ enum Cmd {
     /// Run the simulated pipeline (publisher, estimator, calibrator, control, logger) as
     /// separate processes and print its status once a second.
     Demo(demo::DemoArgs),
+    /// Run a configured pipeline (PIPELINE.toml) under the supervisor: a process that dies is
+    /// restarted with backoff inside a restart budget; Ctrl-C stops all in order.
+    Up(up::UpArgs),
+    /// Soak test: the simulated glove under the supervisor with random SIGKILLs and
+    /// calibration edits; reports frames published, delivered, flagged, lost and peak memory.
+    Soak(soak::SoakArgs),
     /// Reproduce the paper's results on the simulator (`taxel evaluate table1`).
     #[command(subcommand)]
     Evaluate(evaluate::Evaluate),
@@ -39,6 +49,9 @@ enum Cmd {
     Logger(taxel_consumers::logger::Args),
     /// Latency probe: sample-age percentiles and drops.
     Latency(taxel_consumers::latency::Args),
+    /// Live terminal monitor (works over SSH): heatmap, curvature, forces, rates, ages,
+    /// drops and process health per sensor.
+    Monitor(taxel_consumers::monitor::Args),
     /// Latency of the pipeline against raw iceoryx2 and sockets, in one run.
     Bench(bench::BenchArgs),
     /// A socket peer of `taxel bench` (internal).
@@ -49,6 +62,8 @@ enum Cmd {
 fn main() -> ExitCode {
     match Cli::parse().cmd {
         Cmd::Demo(a) => demo::main(a),
+        Cmd::Up(a) => up::main(a),
+        Cmd::Soak(a) => soak::main(a),
         Cmd::Evaluate(e) => evaluate::main(e),
         Cmd::Publisher(a) => taxel_publisher::cli::main(a),
         Cmd::Estimator(a) => taxel_estimator::cli::main(a),
@@ -56,6 +71,7 @@ fn main() -> ExitCode {
         Cmd::Control(a) => taxel_consumers::control::main(a),
         Cmd::Logger(a) => taxel_consumers::logger::main(a),
         Cmd::Latency(a) => taxel_consumers::latency::main(a),
+        Cmd::Monitor(a) => taxel_consumers::monitor::main(a),
         Cmd::Bench(a) => bench::main(a),
         Cmd::BenchPeer(a) => match bench::peers::run(&a) {
             Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,483 @@
+//! `taxel soak`: the simulated glove under the supervisor with a random process SIGKILLed every
+//! `--kill-every` seconds and random valid calibration edits, while an in-process probe watches
+//! every raw and force stream. Reports frames published, delivered, flagged and lost (lost
+//! outside the killed calibrator's own downtime must be zero), restarts and peak memory per
+//! process.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use taxel_msgs::{force_flags, raw_flags, ForceSample, RawFrame, Stream};
+use taxel_runtime::ipc::{self, Ipc};
+use taxel_runtime::process::init_tracing;
+use taxel_runtime::{now_ns, Shutdown};
+
+use crate::demo::{demo_pipeline, CURVATURE_MODEL, SIM_CALIBRATION};
+use crate::supervise::Supervisor;
+
+#[derive(Debug, clap::Args)]
+pub struct SoakArgs {
+    /// Length of the run (s).
+    #[arg(long, default_value_t = 600.0)]
+    pub seconds: f64,
+    /// SIGKILL a random process this often (s).
+    #[arg(long, default_value_t = 30.0)]
+    pub kill_every: f64,
+    /// Rewrite the calibration file (valid, random coefficients and a new version) about this
+    /// often (s; the interval is randomized by +-50 %).
+    #[arg(long, default_value_t = 10.0)]
+    pub edit_every: f64,
+    /// Number of sensors; 5 is the glove.
+    #[arg(long, default_value_t = 5)]
+    pub sensors: usize,
+    /// Frame rate of each sensor (Hz).
+    #[arg(long, default_value_t = 1000.0)]
+    pub rate_hz: f64,
+    /// Seed of the kill and edit schedule.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// iceoryx2 service prefix.
+    #[arg(long, env = "TAXEL_PREFIX", default_value = "taxel_soak_")]
+    pub prefix: String,
+    /// Directory for the calibration and the recording (default: a fresh temp dir).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Print the result as one JSON object.
+    #[arg(long)]
+    pub json: bool,
+    /// Log filter for the child processes.
+    #[arg(long, default_value = "warn")]
+    pub log: String,
+}
+
+/// Small seeded generator (xorshift64*): the kill schedule is reproducible.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+    fn unit(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn below(&mut self, n: usize) -> usize {
+        (self.next() % n.max(1) as u64) as usize
+    }
+}
+
+/// What the probe saw of one sensor.
+#[derive(Default)]
+struct SensorLog {
+    raw_t: Vec<u64>,
+    raw_gap_flags: u64,
+    /// Raw frames the probe itself missed (seq jumps within one publisher incarnation).
+    raw_probe_missed: u64,
+    last_raw_seq: Option<u64>,
+    force_t: Vec<u64>,
+    flagged: u64,
+    flag_counts: BTreeMap<&'static str, u64>,
+}
+
+const FLAGS: [(u32, &str); 4] = [
+    (force_flags::GAP_BEFORE, "gap_before"),
+    (force_flags::CURVATURE_STALE, "curvature_stale"),
+    (force_flags::CURVATURE_DEFAULTED, "curvature_defaulted"),
+    (force_flags::NO_BASELINE, "no_baseline"),
+];
+
+fn probe(
+    prefix: &str,
+    sensors: &[String],
+    stop: &AtomicBool,
+    ready: &AtomicBool,
+) -> anyhow::Result<Vec<SensorLog>> {
+    let ipc = Ipc::open(prefix, "soak-probe")?;
+    let mut subs = Vec::new();
+    for s in sensors {
+        subs.push((
+            ipc.subscriber::<RawFrame>(s, Stream::Raw)?,
+            ipc.subscriber::<ForceSample>(s, Stream::Force)?,
+        ));
+    }
+    let mut logs: Vec<SensorLog> = sensors.iter().map(|_| SensorLog::default()).collect();
+    ready.store(true, Ordering::SeqCst);
+    while !stop.load(Ordering::SeqCst) {
+        for ((raw, force), log) in subs.iter().zip(logs.iter_mut()) {
+            raw.poll_each(|f| {
+                log.raw_t.push(f.t_capture_ns);
+                if f.flags & raw_flags::GAP_BEFORE != 0 {
+                    log.raw_gap_flags += 1;
+                }
+                if let Some(l) = log.last_raw_seq {
+                    if f.seq > l + 1 {
+                        log.raw_probe_missed += f.seq - l - 1;
+                    }
+                }
+                log.last_raw_seq = Some(f.seq);
+                Ok(())
+            })?;
+            force.poll_each(|f| {
+                log.force_t.push(f.t_capture_ns);
+                if f.flags & FLAGS.iter().fold(0, |a, (b, _)| a | b) != 0 {
+                    log.flagged += 1;
+                    for (bit, name) in FLAGS {
+                        if f.flags & bit != 0 {
+                            *log.flag_counts.entry(name).or_default() += 1;
+                        }
+                    }
+                }
+                Ok(())
+            })?;
+        }
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    Ok(logs)
+}
+
+/// Rewrites the calibration with every coefficient scaled by a random factor in [0.98, 1.02]
+/// and a new version, atomically (write + rename, as editors do).
+fn edit_calibration(path: &Path, version: u32, rng: &mut Rng) -> anyhow::Result<()> {
+    let mut out = String::new();
+    for line in SIM_CALIBRATION.lines() {
+        if line.starts_with("version = ") {
+            out.push_str(&format!("version = {version}\n"));
+            continue;
+        }
+        let mut l = line.to_string();
+        if let Some(i) = l.find("coef = ") {
+            let start = i + "coef = ".len();
+            let end = l[start..].find(' ').map_or(l.len(), |e| start + e);
+            if let Ok(v) = l[start..end].parse::<f64>() {
+                let scaled = v * (0.98 + 0.04 * rng.unit());
+                l.replace_range(start..end, &format!("{scaled:e}"));
+            }
+        }
+        out.push_str(&l);
+        out.push('\n');
+    }
+    let tmp = path.with_extension("toml.tmp");
+    std::fs::write(&tmp, out).map_err(|e| anyhow::anyhow!("{}: {e}", tmp.display()))?;
+    std::fs::rename(&tmp, path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    Ok(())
+}
+
+pub fn main(a: SoakArgs) -> ExitCode {
+    init_tracing("info");
+    match run(a) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("taxel soak: error: {}", format!("{e:#}").replace('\n', " "));
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// A SIGKILL the soak sent.
+struct Kill {
+    at_s: f64,
+    at_ns: u64,
+    name: String,
+}
+
+fn run(a: SoakArgs) -> anyhow::Result<ExitCode> {
+    for (v, what) in [
+        (a.seconds, "--seconds"),
+        (a.kill_every, "--kill-every"),
+        (a.edit_every, "--edit-every"),
+    ] {
+        anyhow::ensure!(
+            v.is_finite() && v > 0.0,
+            "{what} must be a positive number, got {v}"
+        );
+    }
+    anyhow::ensure!(
+        (1..=16).contains(&a.sensors),
+        "--sensors must be 1..=16, got {}",
+        a.sensors
+    );
+    anyhow::ensure!(
+        a.rate_hz.is_finite() && a.rate_hz > 0.0 && a.rate_hz <= 10_000.0,
+        "--rate-hz must be in (0, 10000], got {}",
+        a.rate_hz
+    );
+    ipc::config(&a.prefix).map_err(|e| anyhow::anyhow!("--prefix: {e}"))?;
+    let out = match &a.out {
+        Some(d) => d.clone(),
+        None => std::env::temp_dir().join(format!("taxel-soak-{}", std::process::id())),
+    };
+    std::fs::create_dir_all(&out).map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
+    let cal = out.join("calibration.toml");
+    std::fs::write(&cal, SIM_CALIBRATION).map_err(|e| anyhow::anyhow!("{}: {e}", cal.display()))?;
+    let model = out.join("curvature.taxcrv");
+    std::fs::write(&model, CURVATURE_MODEL)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))?;
+    let recording = out.join("soak.taxrec");
+    let mut pipeline = demo_pipeline(a.sensors, a.rate_hz, &cal, &model, &recording, &a.log);
+    for c in &mut pipeline.controls {
+        c.status = false;
+    }
+    let ids: Vec<String> = pipeline.sensors.iter().map(|s| s.id.clone()).collect();
+    let shutdown = Shutdown::install()?;
+    ipc::clean_dead_nodes(&a.prefix).ok();
+
+    // The probe subscribes before anything publishes.
+    let stop = Arc::new(AtomicBool::new(false));
+    let ready = Arc::new(AtomicBool::new(false));
+    let probe_thread = {
+        let (prefix, ids, stop, ready) =
+            (a.prefix.clone(), ids.clone(), stop.clone(), ready.clone());
+        std::thread::spawn(move || probe(&prefix, &ids, &stop, &ready))
+    };
+    let t_ready = Instant::now();
+    while !ready.load(Ordering::SeqCst) {
+        if probe_thread.is_finished() || t_ready.elapsed() > Duration::from_secs(10) {
+            stop.store(true, Ordering::SeqCst);
+            return match probe_thread.join() {
+                Ok(Err(e)) => Err(e.context("soak probe")),
+                _ => Err(anyhow::anyhow!("soak probe did not start within 10 s")),
+            };
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    eprintln!(
+        "taxel soak: {} sensor(s) at {} Hz for {} s, a random SIGKILL every {} s, calibration edits every ~{} s, prefix {:?}, files in {}",
+        ids.len(),
+        a.rate_hz,
+        a.seconds,
+        a.kill_every,
+        a.edit_every,
+        a.prefix,
+        out.display()
+    );
+    let mut sup = Supervisor::start(&a.prefix, &a.log, pipeline.policy(), pipeline.processes())?;
+    let mut rng = Rng(a.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
+    let t0 = Instant::now();
+    let mut next_kill = Duration::from_secs_f64(a.kill_every);
+    let mut next_edit = Duration::from_secs_f64(a.edit_every * (0.5 + rng.unit()));
+    let mut kills: Vec<Kill> = Vec::new();
+    let mut edits = 0u32;
+    let mut edit_errors = 0u32;
+    let until = t0 + Duration::from_secs_f64(a.seconds);
+    sup.run(&shutdown, Some(until), |sup| {
+        let el = t0.elapsed();
+        // No kill in the last 2 s: every victim is back before the stop.
+        let closing = el.as_secs_f64() > a.seconds - 2.0;
+        if el >= next_kill && !closing {
+            next_kill += Duration::from_secs_f64(a.kill_every);
+            let running: Vec<String> = sup
+                .slots
+                .iter()
+                .filter(|s| s.pid().is_some())
+                .map(|s| s.spec.name.clone())
+                .collect();
+            if !running.is_empty() {
+                let name = running[rng.below(running.len())].clone();
+                let at_ns = now_ns();
+                if let Some(pid) = sup.signal(&name, libc::SIGKILL) {
+                    eprintln!(
+                        "taxel soak: t={:.1} s SIGKILL {name} (pid {pid})",
+                        el.as_secs_f64()
+                    );
+                    kills.push(Kill {
+                        at_s: el.as_secs_f64(),
+                        at_ns,
+                        name,
+                    });
+                }
+            }
+        }
+        if el >= next_edit {
+            next_edit += Duration::from_secs_f64(a.edit_every * (0.5 + rng.unit()));
+            edits += 1;
+            if let Err(e) = edit_calibration(&cal, edits + 1, &mut rng) {
+                edit_errors += 1;
+                eprintln!("taxel soak: calibration edit failed: {e:#}");
+            }
+        }
+    });
+    let t_stop_ns = now_ns();
+    let outcome = sup.stop();
+    stop.store(true, Ordering::SeqCst);
+    let logs = match probe_thread.join() {
+        Ok(r) => r.map_err(|e| e.context("soak probe"))?,
+        Err(_) => anyhow::bail!("soak probe panicked"),
+    };
+    let (sm_line, sm_clean) = sup.shared_memory_report();
+    let report = count(&a, &ids, &logs, &sup, &kills, t_stop_ns);
+    let all_ok = outcome.all_ok && sm_clean && report.lost == 0 && edit_errors == 0;
+    let peaks: Vec<String> = sup
+        .slots
+        .iter()
+        .map(|s| format!("\"{}\": {:.1}", s.spec.name, s.peak_kib as f64 / 1024.0))
+        .collect();
+    let restarts: Vec<String> = sup
+        .slots
+        .iter()
+        .filter(|s| s.restarts > 0 || !s.deaths.is_empty())
+        .map(|s| format!("\"{}\": {}", s.spec.name, s.restarts))
+        .collect();
+    let kill_list: Vec<String> = kills
+        .iter()
+        .map(|k| format!("{{\"t_s\": {:.1}, \"process\": \"{}\"}}", k.at_s, k.name))
+        .collect();
+    let flags: Vec<String> = report
+        .flag_counts
+        .iter()
+        .map(|(k, v)| format!("\"{k}\": {v}"))
+        .collect();
+    if a.json {
+        println!(
+            "{{\"seconds\": {:.1}, \"sensors\": {}, \"rate_hz\": {}, \"kills\": [{}], \"restarts\": {{{}}}, \"calibration_edits\": {edits}, \"published\": {}, \"delivered\": {}, \"flagged\": {}, \"flags\": {{{}}}, \"lost\": {}, \"lost_in_downtime\": {}, \"probe_missed\": {}, \"raw_gap_flags\": {}, \"peak_rss_mb\": {{{}}}, \"exit_ok\": {}, \"shm_clean\": {sm_clean}}}",
+            t0.elapsed().as_secs_f64(),
+            ids.len(),
+            a.rate_hz,
+            kill_list.join(", "),
+            restarts.join(", "),
+            report.published,
+            report.delivered,
+            report.flagged,
+            flags.join(", "),
+            report.lost,
+            report.lost_in_downtime,
+            report.probe_missed,
+            report.raw_gap_flags,
+            peaks.join(", "),
+            outcome.all_ok,
+        );
+    } else {
+        println!(
+            "taxel soak after {:.1} s: {} kill(s), {} restart(s), {edits} calibration edit(s)",
+            t0.elapsed().as_secs_f64(),
+            kills.len(),
+            outcome.restarts
+        );
+        println!(
+            "  frames published {} | delivered {} | flagged {} ({}) | lost {} (+ {} during the killed calibrator's downtime) | missed by the probe {}",
+            report.published,
+            report.delivered,
+            report.flagged,
+            flags.join(", "),
+            report.lost,
+            report.lost_in_downtime,
+            report.probe_missed
+        );
+        for l in sup.summary_lines() {
+            println!("{l}");
+        }
+        println!(
+            "  peak memory (VmHWM, MB): {}",
+            peaks.join(", ").replace('"', "")
+        );
+        println!("{sm_line}");
+    }
+    Ok(if all_ok {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+#[derive(Default)]
+struct Report {
+    published: u64,
+    delivered: u64,
+    flagged: u64,
+    flag_counts: BTreeMap<&'static str, u64>,
+    lost: u64,
+    lost_in_downtime: u64,
+    probe_missed: u64,
+    raw_gap_flags: u64,
+}
+
+/// Frames in flight in a calibrator when it is killed: captured up to this long before the kill.
+const IN_FLIGHT_NS: u64 = 50_000_000;
+/// Frames captured this close to the stop are not counted (the stop is not a fault).
+const TAIL_NS: u64 = 500_000_000;
+
+/// Counts per sensor, from each sensor's first delivered force sample to shortly before the
+/// stop: a raw frame without a force sample of the same capture time is lost, unless it was
+/// captured while that sensor's calibrator was down (from [`IN_FLIGHT_NS`] before it died to
+/// the first force sample of its replacement).
+fn count(
+    a: &SoakArgs,
+    ids: &[String],
+    logs: &[SensorLog],
+    sup: &Supervisor,
+    kills: &[Kill],
+    t_stop_ns: u64,
+) -> Report {
+    let _ = a;
+    let mut r = Report::default();
+    for (id, log) in ids.iter().zip(logs) {
+        let mut force = log.force_t.clone();
+        force.sort_unstable();
+        force.dedup();
+        let Some(&first) = force.first() else {
+            continue;
+        };
+        let end = t_stop_ns.saturating_sub(TAIL_NS);
+        let cal_name = format!("calibrator-{id}");
+        let windows: Vec<(u64, u64)> = sup
+            .slots
+            .iter()
+            .filter(|s| s.spec.name == cal_name)
+            .flat_map(|s| s.downtimes.iter())
+            .map(|d| {
+                let killed = kills
+                    .iter()
+                    .filter(|k| k.name == cal_name && k.at_ns <= d.died_ns)
+                    .map(|k| k.at_ns)
+                    .next_back()
+                    .unwrap_or(d.died_ns);
+                let resumed = d
+                    .restarted_ns
+                    .and_then(|t| force.iter().find(|&&f| f >= t).copied())
+                    .unwrap_or(u64::MAX);
+                (killed.saturating_sub(IN_FLIGHT_NS), resumed)
+            })
+            .collect();
+        for &t in log.raw_t.iter().filter(|&&t| t >= first && t < end) {
+            r.published += 1;
+            if force.binary_search(&t).is_ok() {
+                r.delivered += 1;
+            } else if windows.iter().any(|&(s, e)| t >= s && t < e) {
+                r.lost_in_downtime += 1;
+            } else {
+                r.lost += 1;
+            }
+        }
+        r.flagged += log.flagged;
+        for (k, v) in &log.flag_counts {
+            *r.flag_counts.entry(k).or_default() += v;
+        }
+        r.probe_missed += log.raw_probe_missed;
+        r.raw_gap_flags += log.raw_gap_flags;
+    }
+    r
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn calibration_edits_stay_valid_and_change_the_version() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("cal.toml");
+        let mut rng = Rng(7);
+        for v in 2..5 {
+            edit_calibration(&p, v, &mut rng).expect("edit");
+            let c = taxel_calibrator::calibration::Calibration::load(&p).expect("valid");
+            assert_eq!(c.version, v);
+        }
+        let text = std::fs::read_to_string(&p).expect("read");
+        assert_ne!(text, SIM_CALIBRATION);
+    }
+}
