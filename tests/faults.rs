@@ -1,0 +1,392 @@
+//! Faults that must be survived, with the real binaries: `kill -9` of every process kind under
+//! `taxel up` (survivors keep running, the supervisor cleans the dead node and restarts the
+//! victim, the stream resumes with a flagged gap, the control loop goes to its safe state while
+//! its force stream is down), a SIGKILLed logger leaves a recording readable up to its last
+//! flush, and a short soak with random kills loses nothing outside the killed process's
+//! downtime.
+
+mod common;
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use common::{shm_files, spawn, spawn_ready, unique_prefix, Proc};
+use taxel_formats::{Record, RecordFileReader};
+use taxel_msgs::{force_flags, raw_flags};
+
+const SIM_CAL: &str = include_str!("../calibrations/sim-default.toml");
+
+fn alive(pid: u32) -> bool {
+    // SAFETY: kill(2) with signal 0 only checks that the process exists.
+    unsafe { libc::kill(pid as i32, 0) == 0 }
+}
+
+fn sigkill(pid: u32) {
+    // SAFETY: kill(2) on a child of the supervisor we started.
+    unsafe {
+        libc::kill(pid as i32, libc::SIGKILL);
+    }
+}
+
+/// The pid of the latest incarnation of `name` (from the supervisor's "started"/"restarted"
+/// lines).
+fn current_pid(p: &mut Proc, name: &str) -> u32 {
+    let out = p.output();
+    out.lines()
+        .filter_map(|l| {
+            let i = l
+                .find(&format!("started {name} pid "))
+                .map(|i| i + format!("started {name} pid ").len())?;
+            l[i..].split_whitespace().next()?.parse().ok()
+        })
+        .next_back()
+        .unwrap_or_else(|| panic!("no pid for {name}:\n{out}"))
+}
+
+fn count(p: &mut Proc, needle: &str) -> usize {
+    p.output().lines().filter(|l| l.contains(needle)).count()
+}
+
+/// Waits until `needle` has appeared more than `before` times.
+fn wait_count(p: &mut Proc, needle: &str, before: usize, limit: Duration) {
+    let t0 = Instant::now();
+    while count(p, needle) <= before {
+        assert!(
+            t0.elapsed() < limit,
+            "{needle:?} did not appear (again) within {limit:?}:\n{}",
+            p.output()
+        );
+        assert!(
+            p.child.try_wait().ok().flatten().is_none(),
+            "taxel up exited:\n{}",
+            p.output()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn read_records(path: &Path) -> Vec<Record> {
+    let mut r = RecordFileReader::open(path).expect("open recording");
+    let mut out = Vec::new();
+    while let Some(rec) = r.next_record() {
+        out.push(rec);
+    }
+    out
+}
+
+/// Every discontinuity of the sequence in `seq_flags` (seq, flags) must come with `gap_bit`.
+fn gaps_are_flagged(seq_flags: &[(u64, u32)], gap_bit: u32, what: &str) -> usize {
+    let mut gaps = 0;
+    for w in seq_flags.windows(2) {
+        let ((a, _), (b, flags)) = (w[0], w[1]);
+        if b != a + 1 {
+            gaps += 1;
+            assert!(
+                flags & gap_bit != 0,
+                "{what}: seq {a} -> {b} without a gap flag (flags {flags:#x})"
+            );
+        }
+    }
+    gaps
+}
+
+#[test]
+fn kill_9_of_each_process_kind_is_survived_under_taxel_up() {
+    let prefix = unique_prefix("f");
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::write(dir.path().join("cal.toml"), SIM_CAL).expect("calibration");
+    let pipeline = dir.path().join("pipeline.toml");
+    std::fs::write(
+        &pipeline,
+        r#"
+log = "info"
+[supervision]
+backoff_initial_ms = 100
+backoff_max_ms = 2000
+max_restarts = 3
+restart_window_s = 60
+deadline_ms = 5
+watchdog_ms = 50
+
+[[sensor]]
+id = "s0"
+calibration = "cal.toml"
+curvature_m1 = 40
+source = { kind = "sim", rate_hz = 500 }
+
+[[control]]
+sensor = "s0"
+
+[logger]
+out = "run.taxrec"
+flush_ms = 100
+
+[[latency]]
+"#,
+    )
+    .expect("pipeline");
+    let limit = Duration::from_secs(20);
+    let mut up = spawn("up", &prefix, &["up", &pipeline.display().to_string()]);
+    up.wait_for("started publisher-s0 pid", limit);
+    up.wait_for("publisher ready", limit);
+    up.wait_for("first no-load baseline", limit);
+    let names = [
+        "logger",
+        "latency",
+        "control-s0",
+        "estimator-s0",
+        "calibrator-s0",
+        "publisher-s0",
+    ];
+    let ready = [
+        "logger ready",
+        "latency probe ready",
+        "control ready",
+        "estimator ready",
+        "calibrator ready",
+        "publisher ready",
+    ];
+    // The logger goes first: its replacement records the rest of the run in run.1.taxrec.
+    for (victim, ready_line) in names.iter().zip(ready) {
+        let others: Vec<(&str, u32)> = names
+            .iter()
+            .filter(|n| *n != victim)
+            .map(|n| (*n, current_pid(&mut up, n)))
+            .collect();
+        let pid = current_pid(&mut up, victim);
+        let ready_before = count(&mut up, ready_line);
+        let safe_before = count(&mut up, "safe state");
+        std::thread::sleep(Duration::from_millis(700));
+        sigkill(pid);
+        up.wait_for(
+            &format!("{victim} pid {pid} died (SIGKILL); restart 1"),
+            limit,
+        );
+        up.wait_for(&format!("restarted {victim} pid"), limit);
+        // The replacement opened the same services: nothing stale blocked it.
+        wait_count(&mut up, ready_line, ready_before, limit);
+        let line = up
+            .output()
+            .lines()
+            .find(|l| l.contains(&format!("restarted {victim} pid")))
+            .map(str::to_string)
+            .expect("restart line");
+        assert!(
+            !line.contains("cleaned stale resources of 0 dead node"),
+            "the dead node of {victim} was not cleaned before the restart: {line}"
+        );
+        if ["calibrator-s0", "publisher-s0"].contains(victim) {
+            // No fresh force samples while it is down: the control loop holds its safe state.
+            wait_count(&mut up, "safe state", safe_before, limit);
+        }
+        for (name, opid) in &others {
+            assert!(
+                alive(*opid),
+                "{name} (pid {opid}) did not survive the kill of {victim}"
+            );
+            assert_eq!(current_pid(&mut up, name), *opid, "{name} was restarted");
+        }
+    }
+    // The stream resumed: the control loop runs unflagged again after the last restart.
+    let status_before = count(&mut up, " ok");
+    wait_count(&mut up, " ok", status_before, limit);
+    std::thread::sleep(Duration::from_millis(500));
+    up.sigint();
+    let st = up.wait_exit(Duration::from_secs(30));
+    let out = up.output();
+    assert!(st.success(), "taxel up exited {st}:\n{out}");
+    for n in names {
+        assert!(
+            out.lines().any(|l| l.contains(&format!("  {n} "))
+                && l.contains("exited 0")
+                && l.contains("restarted 1 time(s); deaths: SIGKILL")),
+            "{n}: no clean exit after one restart in the summary:\n{out}"
+        );
+    }
+    assert!(out.contains("no iceoryx2 nodes left"), "{out}");
+    assert_eq!(shm_files(&prefix), Vec::<String>::new());
+
+    // The first logger's file is readable up to its last flush; the replacement recorded the
+    // calibrator and publisher restarts, each a flagged gap.
+    let first = read_records(&dir.path().join("run.taxrec"));
+    assert!(
+        !first.is_empty(),
+        "nothing readable in the killed logger's file"
+    );
+    let second = read_records(&dir.path().join("run.1.taxrec"));
+    let raw: Vec<(u64, u32)> = second
+        .iter()
+        .filter_map(|r| match r {
+            Record::Raw { seq, flags, .. } => Some((*seq, *flags)),
+            _ => None,
+        })
+        .collect();
+    let force: Vec<(u64, u32)> = second
+        .iter()
+        .filter_map(|r| match r {
+            Record::Force { seq, flags, .. } => Some((*seq, *flags)),
+            _ => None,
+        })
+        .collect();
+    // The publisher restarted from seq 0 with GAP_BEFORE on its first frame.
+    assert_eq!(
+        gaps_are_flagged(&raw, raw_flags::GAP_BEFORE, "raw"),
+        1,
+        "one restart of the publisher"
+    );
+    // Force: the calibrator's downtime and the publisher restart, both flagged.
+    let gaps = gaps_are_flagged(&force, force_flags::GAP_BEFORE, "force");
+    assert!(gaps >= 2, "{gaps} gap(s) in the force stream");
+}
+
+#[test]
+fn a_sigkilled_logger_leaves_a_recording_readable_up_to_its_last_flush() {
+    let prefix = unique_prefix("k");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rec = dir.path().join("run.taxrec");
+    let rec_s = rec.display().to_string();
+    let flush_ms = 100u64;
+    let mut logger = spawn_ready(
+        "logger",
+        &prefix,
+        &[
+            "logger",
+            "record",
+            "--sensor",
+            "s0",
+            "--out",
+            &rec_s,
+            "--flush-ms",
+            &flush_ms.to_string(),
+        ],
+        "logger ready",
+    );
+    let mut publisher = spawn_ready(
+        "publisher",
+        &prefix,
+        &["publisher", "--sensor", "s0", "sim", "--rate-hz", "1000"],
+        "publisher ready",
+    );
+    std::thread::sleep(Duration::from_millis(2500));
+    let t_kill = taxel_runtime::now_ns();
+    logger.child.kill().expect("SIGKILL the logger");
+    let st = logger.wait_exit(Duration::from_secs(10));
+    assert!(!st.success());
+
+    let mut reader = RecordFileReader::open(&rec).expect("open");
+    let mut raw = Vec::new();
+    let mut total = 0usize;
+    while let Some(r) = reader.next_record() {
+        total += 1;
+        if let Record::Raw {
+            seq, t_capture_ns, ..
+        } = r
+        {
+            raw.push((seq, t_capture_ns));
+        }
+    }
+    assert!(raw.len() > 1000, "only {} raw records", raw.len());
+    for w in raw.windows(2) {
+        assert_eq!(w[1].0, w[0].0 + 1, "raw seq not consecutive");
+    }
+    let last_t = raw.last().map(|r| r.1).unwrap_or(0);
+    let lost_ms = t_kill.saturating_sub(last_t) as f64 / 1e6;
+    eprintln!(
+        "{total} intact records, {} raw; the last raw frame was captured {lost_ms:.1} ms before the SIGKILL (flush every {flush_ms} ms); torn tail: {:?}",
+        raw.len(),
+        reader.tail().map(|t| format!("{t:?}"))
+    );
+    // At most one flush interval (plus scheduling margin on a shared 2-core machine) is lost.
+    assert!(
+        lost_ms <= flush_ms as f64 + 150.0,
+        "{lost_ms:.1} ms of data lost with --flush-ms {flush_ms}"
+    );
+
+    // The stream survived the dead subscriber; a new node under the prefix cleans it up.
+    let mut second = spawn_ready(
+        "logger2",
+        &prefix,
+        &[
+            "logger",
+            "record",
+            "--sensor",
+            "s0",
+            "--out",
+            &dir.path().join("run2.taxrec").display().to_string(),
+        ],
+        "logger ready",
+    );
+    std::thread::sleep(Duration::from_millis(300));
+    second.sigint();
+    assert!(second.wait_exit(Duration::from_secs(10)).success());
+    assert!(
+        read_records(&dir.path().join("run2.taxrec"))
+            .iter()
+            .any(|r| matches!(r, Record::Raw { .. })),
+        "the publisher kept streaming after the logger was killed"
+    );
+    publisher.sigint();
+    assert!(publisher.wait_exit(Duration::from_secs(10)).success());
+    // No node, dead or alive, is left; the prefix's management segment is released as a
+    // launcher does (the killed logger prevented iceoryx2 from removing it by itself).
+    assert_eq!(
+        taxel_runtime::ipc::count_nodes(&prefix).expect("list"),
+        (0, 0)
+    );
+    taxel_runtime::ipc::release_prefix(&prefix).expect("release");
+    assert_eq!(shm_files(&prefix), Vec::<String>::new());
+}
+
+#[test]
+fn a_short_soak_with_random_kills_loses_nothing_outside_downtime() {
+    let prefix = unique_prefix("s");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut soak = spawn(
+        "soak",
+        &prefix,
+        &[
+            "soak",
+            "--seconds",
+            "16",
+            "--kill-every",
+            "5",
+            "--edit-every",
+            "3",
+            "--sensors",
+            "2",
+            "--rate-hz",
+            "500",
+            "--seed",
+            "3",
+            "--json",
+            "--prefix",
+            &prefix,
+            "--out",
+            &dir.path().display().to_string(),
+        ],
+    );
+    let st = soak.wait_exit(Duration::from_secs(90));
+    let out = soak.output();
+    assert!(st.success(), "soak exited {st}:\n{out}");
+    let json = out
+        .lines()
+        .find(|l| l.starts_with("{\"seconds\""))
+        .unwrap_or_else(|| panic!("no JSON line:\n{out}"));
+    let field = |k: &str| -> f64 {
+        let i = json.find(&format!("\"{k}\": ")).expect(k) + k.len() + 4;
+        json[i..]
+            .split([',', '}'])
+            .next()
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or_else(|| panic!("{k} in {json}"))
+    };
+    assert_eq!(field("lost"), 0.0, "{json}");
+    assert!(field("published") > 5000.0, "{json}");
+    assert!(
+        field("delivered") + field("lost_in_downtime") >= field("published"),
+        "{json}"
+    );
+    assert!(json.contains("\"kills\": [{"), "{json}");
+    assert!(field("calibration_edits") >= 2.0, "{json}");
+    assert_eq!(shm_files(&prefix), Vec::<String>::new());
+}
