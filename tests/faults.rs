@@ -390,3 +390,93 @@ fn a_short_soak_with_random_kills_loses_nothing_outside_downtime() {
     assert!(field("calibration_edits") >= 2.0, "{json}");
     assert_eq!(shm_files(&prefix), Vec::<String>::new());
 }
+
+#[test]
+fn a_process_that_keeps_dying_exhausts_its_restart_budget_and_the_others_keep_running() {
+    let prefix = unique_prefix("b");
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::write(dir.path().join("cal.toml"), SIM_CAL).expect("calibration");
+    // s1 replays a file with a bad row: its publisher exits 2 at every start.
+    std::fs::write(dir.path().join("bad.csv"), "t_s,n0\n0.0,abc\n").expect("csv");
+    let pipeline = dir.path().join("pipeline.toml");
+    std::fs::write(
+        &pipeline,
+        r#"
+log = "info"
+[supervision]
+backoff_initial_ms = 100
+backoff_max_ms = 300
+max_restarts = 3
+restart_window_s = 60
+
+[[sensor]]
+id = "s0"
+calibration = "cal.toml"
+curvature_m1 = 40
+source = { kind = "sim", rate_hz = 200 }
+
+[[sensor]]
+id = "s1"
+calibration = "cal.toml"
+curvature_m1 = 40
+source = { kind = "replay", file = "bad.csv" }
+
+[[control]]
+sensor = "s0"
+"#,
+    )
+    .expect("pipeline");
+    let limit = Duration::from_secs(20);
+    let mut up = spawn("up", &prefix, &["up", &pipeline.display().to_string()]);
+    up.wait_for("publisher-s1 pid", limit);
+    // Backoff doubles up to its maximum, then the budget runs out.
+    up.wait_for("died (exit 2); restart 1 in 100 ms", limit);
+    up.wait_for("died (exit 2); restart 2 in 200 ms", limit);
+    up.wait_for("died (exit 2); restart 3 in 300 ms", limit);
+    up.wait_for(
+        "died (exit 2); restart budget exhausted (3 restarts within 60 s): it stays stopped, the others keep running",
+        limit,
+    );
+    let out = up.output();
+    assert!(
+        out.contains("is not a number"),
+        "the child's reason is visible:\n{out}"
+    );
+    let survivors: Vec<(&str, u32)> = [
+        "control-s0",
+        "calibrator-s0",
+        "estimator-s0",
+        "publisher-s0",
+    ]
+    .iter()
+    .map(|n| (*n, current_pid(&mut up, n)))
+    .collect();
+    // s0 keeps streaming: its control loop prints fresh status lines.
+    let status = count(&mut up, "[s0] ");
+    wait_count(&mut up, "[s0] ", status + 1, limit);
+    for (n, pid) in &survivors {
+        assert!(alive(*pid), "{n} died");
+        assert_eq!(current_pid(&mut up, n), *pid, "{n} was restarted");
+    }
+    up.sigint();
+    let st = up.wait_exit(Duration::from_secs(30));
+    let out = up.output();
+    assert_eq!(
+        st.code(),
+        Some(1),
+        "a process given up on makes the exit code 1:\n{out}"
+    );
+    assert!(
+        out.lines()
+            .any(|l| l.contains("publisher-s1") && l.contains("gave up (exit 2)")),
+        "{out}"
+    );
+    for (n, _) in &survivors {
+        assert!(
+            out.lines()
+                .any(|l| l.contains(&format!("  {n} ")) && l.contains("exited 0")),
+            "{n} did not exit 0:\n{out}"
+        );
+    }
+    assert_eq!(shm_files(&prefix), Vec::<String>::new());
+}
