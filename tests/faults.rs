@@ -10,7 +10,7 @@ mod common;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::{shm_files, spawn, spawn_ready, unique_prefix, Proc};
+use common::{run, shm_files, spawn, spawn_ready, unique_prefix, Proc};
 use taxel_formats::{Record, RecordFileReader};
 use taxel_msgs::{force_flags, raw_flags};
 
@@ -478,5 +478,33 @@ sensor = "s0"
             "{n} did not exit 0:\n{out}"
         );
     }
+    assert_eq!(shm_files(&prefix), Vec::<String>::new());
+}
+
+#[test]
+fn a_bad_pipeline_file_is_refused_before_anything_starts() {
+    let prefix = unique_prefix("e");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let p = dir.path().join("bad.toml");
+    std::fs::write(
+        &p,
+        "[[sensor]]\nid = \"s0\"\ncalibration = \"nope.toml\"\ncurvature_m1 = 1\nsource = { kind = \"sim\" }\n",
+    )
+    .expect("write");
+    let ps = p.display().to_string();
+    let (code, out, err) = run(&prefix, &["up", &ps]);
+    assert_eq!(code, 2, "{out}{err}");
+    assert!(
+        err.contains("bad.toml") && err.contains("nope.toml"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+    std::fs::write(&p, "[supervision]\nbackof_ms = 3\n").expect("write");
+    let (code, _, err) = run(&prefix, &["up", &ps]);
+    assert_eq!(code, 2);
+    assert!(err.contains("backof_ms"), "{err}");
+    let (code, _, err) = run(&prefix, &["up", "/nonexistent/pipeline.toml"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("/nonexistent/pipeline.toml"), "{err}");
     assert_eq!(shm_files(&prefix), Vec::<String>::new());
 }
