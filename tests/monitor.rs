@@ -1,0 +1,193 @@
+//! The live monitor driven as a person would: `taxel monitor` in a real terminal (a detached
+//! tmux session of fixed size), read back with capture-pane, keys sent with send-keys, against a
+//! running two-sensor demo. Skips with a message when tmux is not installed.
+
+mod common;
+
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use common::{run, spawn, unique_prefix, TAXEL};
+
+struct Tmux {
+    socket: String,
+}
+
+impl Tmux {
+    fn cmd(&self, args: &[&str]) -> String {
+        let out = Command::new("tmux")
+            .arg("-L")
+            .arg(&self.socket)
+            .args(args)
+            .output()
+            .expect("run tmux");
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    }
+
+    fn screen(&self) -> String {
+        self.cmd(&["capture-pane", "-p", "-t", "m"])
+    }
+
+    /// Waits (with a deadline) until the screen satisfies `ok`; returns it.
+    fn wait_screen(&self, what: &str, ok: impl Fn(&str) -> bool) -> String {
+        let t0 = Instant::now();
+        loop {
+            let s = self.screen();
+            if ok(&s) {
+                return s;
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(20),
+                "the screen never showed {what}:\n{s}"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    fn keys(&self, k: &str) {
+        self.cmd(&["send-keys", "-t", "m", k]);
+    }
+
+    /// Starts `taxel monitor args` in a new 120 x 40 session; the shell prints the exit code
+    /// after it and stays open so the restored screen can be read.
+    fn start(&self, prefix: &str, args: &str) {
+        let shell = format!(
+            "TAXEL_PREFIX={prefix} '{TAXEL}' monitor {args}; echo MONITOR_EXIT=$?; sleep 60"
+        );
+        self.cmd(&["kill-session", "-t", "m"]);
+        let out = Command::new("tmux")
+            .args(["-L", &self.socket, "new-session", "-d", "-s", "m"])
+            .args(["-x", "120", "-y", "40", &shell])
+            .status()
+            .expect("tmux new-session");
+        assert!(out.success(), "tmux new-session failed");
+    }
+}
+
+impl Drop for Tmux {
+    fn drop(&mut self) {
+        self.cmd(&["kill-server"]);
+    }
+}
+
+/// The number after `key` on the screen (e.g. "rate 200.0 Hz").
+fn number_after(screen: &str, key: &str) -> Option<f64> {
+    let i = screen.find(key)? + key.len();
+    let rest = screen[i..].trim_start();
+    let end = rest
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(rest.len());
+    rest[..end].parse().ok()
+}
+
+fn has_live_numbers(s: &str) -> bool {
+    number_after(s, "rate ").is_some_and(|r| r > 0.0)
+        && number_after(s, "frames ").is_some_and(|f| f > 0.0)
+        && number_after(s, "││force ").is_some()
+}
+
+#[test]
+fn monitor_shows_live_sensors_switches_and_quits_cleanly() {
+    if Command::new("tmux").arg("-V").output().is_err() {
+        eprintln!("SKIP monitor test: tmux is not installed");
+        return;
+    }
+    let prefix = unique_prefix("mon");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().display().to_string();
+    let mut demo = spawn(
+        "demo",
+        &prefix,
+        &[
+            "demo",
+            "--sensors",
+            "2",
+            "--rate-hz",
+            "200",
+            "--seconds",
+            "120",
+            "--out",
+            &out,
+        ],
+    );
+    demo.wait_for("[s1]", Duration::from_secs(30));
+
+    let tmux = Tmux {
+        socket: format!("taxel-test-{prefix}"),
+    };
+    // Sensors discovered from the service listing.
+    tmux.start(&prefix, "");
+    let s = tmux.wait_screen("both sensors with live numbers", |s| {
+        s.contains("1 s0")
+            && s.contains("2 s1")
+            && s.contains("s0 | view: raw counts")
+            && has_live_numbers(s)
+    });
+    assert!(s.contains("publisher-s0"), "process table:\n{s}");
+    assert!(s.contains("calibrator-s1"), "process table:\n{s}");
+    assert!(s.contains("alive"), "process health:\n{s}");
+    assert!(s.contains("calibration v"), "calibration:\n{s}");
+
+    tmux.keys("v");
+    tmux.wait_screen("the baseline-subtracted view", |s| {
+        s.contains("view: baseline-subtracted counts")
+    });
+    tmux.keys("v");
+    tmux.wait_screen("the force view", |s| s.contains("view: force (N"));
+    tmux.keys("2");
+    tmux.wait_screen("sensor s1 selected", |s| {
+        s.contains("s1 | view: force (N") && has_live_numbers(s)
+    });
+    tmux.keys("Tab");
+    tmux.wait_screen("back to s0", |s| s.contains("s0 | view: force (N"));
+    tmux.keys("q");
+    let s = tmux.wait_screen("the exit code", |s| s.contains("MONITOR_EXIT="));
+    assert!(s.contains("MONITOR_EXIT=0"), "monitor exit:\n{s}");
+    assert!(!s.contains("view:"), "the UI is still on screen:\n{s}");
+    assert!(
+        number_after(&s, "taxel monitor: s0").is_some_and(|f| f > 0.0),
+        "summary line:\n{s}"
+    );
+    // Terminal restored: alternate screen left, cursor visible.
+    assert_eq!(
+        tmux.cmd(&["display", "-p", "-t", "m", "#{alternate_on} #{cursor_flag}"])
+            .trim(),
+        "0 1"
+    );
+
+    // One sensor by flag; Ctrl-C quits cleanly too.
+    tmux.start(&prefix, "--sensor s1");
+    let s = tmux.wait_screen("sensor s1 with live numbers", |s| {
+        s.contains("s1 | view: raw counts") && has_live_numbers(s)
+    });
+    assert!(
+        !s.contains("2 s1"),
+        "only the chosen sensor has a tab:\n{s}"
+    );
+    tmux.keys("C-c");
+    let s = tmux.wait_screen("the exit code", |s| s.contains("MONITOR_EXIT="));
+    assert!(
+        s.contains("MONITOR_EXIT=0"),
+        "monitor exit after Ctrl-C:\n{s}"
+    );
+    assert_eq!(
+        tmux.cmd(&["display", "-p", "-t", "m", "#{alternate_on} #{cursor_flag}"])
+            .trim(),
+        "0 1"
+    );
+
+    demo.sigint();
+    let st = demo.wait_exit(Duration::from_secs(30));
+    assert!(st.success(), "demo: {st}\n{}", demo.output());
+}
+
+#[test]
+fn monitor_refuses_bad_flags_before_touching_the_terminal() {
+    let prefix = unique_prefix("monbad");
+    let (code, _, err) = run(&prefix, &["monitor", "--fps", "0"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--fps"), "{err}");
+    let (code, _, err) = run(&prefix, &["monitor", "--sensor", "a/b"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("a/b"), "{err}");
+}

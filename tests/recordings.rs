@@ -1,0 +1,230 @@
+//! Recordings people can open: a live demo run recorded by the logger, exported to MCAP, read
+//! back with the `mcap` crate itself (every message, in order, with its values and capture
+//! time), then played back from the MCAP by the publisher and recorded again.
+
+mod common;
+
+use std::time::Duration;
+
+use common::{run, spawn_ready, unique_prefix};
+use taxel_formats::{Record, RecordFileReader};
+
+fn f(v: &serde_json::Value) -> f32 {
+    v.as_f64().map_or(f32::NAN, |x| x as f32)
+}
+
+fn same_f32(a: f32, b: f32) -> bool {
+    a == b || (a.is_nan() && b.is_nan())
+}
+
+fn same_vec(json: &serde_json::Value, v: &[f32]) -> bool {
+    let a = json.as_array().expect("array");
+    a.len() == v.len() && a.iter().zip(v).all(|(x, y)| same_f32(f(x), *y))
+}
+
+/// Checks one MCAP message against the record it was exported from.
+fn check(msg: &mcap::Message<'_>, rec: &Record) {
+    let j: serde_json::Value = serde_json::from_slice(&msg.data).expect("JSON message");
+    let ctx = format!("{} {j}", msg.channel.topic);
+    let (stream, sensor, seq, t) = match rec {
+        Record::Raw {
+            sensor,
+            seq,
+            t_capture_ns,
+            rows,
+            cols,
+            counts,
+            ..
+        } => {
+            assert_eq!(j["rows"], *rows, "{ctx}");
+            assert_eq!(j["cols"], *cols, "{ctx}");
+            assert!(same_vec(&j["counts"], counts), "{ctx}");
+            ("raw", sensor, seq, t_capture_ns)
+        }
+        Record::Curvature {
+            sensor,
+            seq,
+            t_capture_ns,
+            curvature_m1,
+            curvature_sd_m1,
+            baseline,
+            ..
+        } => {
+            assert!(same_f32(f(&j["curvature_m1"]), *curvature_m1), "{ctx}");
+            assert!(
+                same_f32(f(&j["curvature_sd_m1"]), *curvature_sd_m1),
+                "{ctx}"
+            );
+            assert!(same_vec(&j["baseline"], baseline), "{ctx}");
+            ("curvature", sensor, seq, t_capture_ns)
+        }
+        Record::Force {
+            sensor,
+            seq,
+            t_capture_ns,
+            t_publish_ns,
+            total_force_n,
+            cal_version,
+            block_force_n,
+            block_reading,
+            ..
+        } => {
+            assert_eq!(msg.publish_time, *t_publish_ns, "{ctx}");
+            assert!(same_f32(f(&j["total_force_n"]), *total_force_n), "{ctx}");
+            assert_eq!(j["cal_version"], *cal_version, "{ctx}");
+            assert!(same_vec(&j["block_force_n"], block_force_n), "{ctx}");
+            assert!(same_vec(&j["block_reading"], block_reading), "{ctx}");
+            ("force", sensor, seq, t_capture_ns)
+        }
+        Record::Reference {
+            sensor,
+            seq,
+            t_capture_ns,
+            force_n,
+            curvature_m1,
+            trial,
+            ..
+        } => {
+            assert!(same_f32(f(&j["force_n"]), *force_n), "{ctx}");
+            assert!(same_f32(f(&j["curvature_m1"]), *curvature_m1), "{ctx}");
+            assert_eq!(j["trial"], *trial, "{ctx}");
+            ("reference", sensor, seq, t_capture_ns)
+        }
+    };
+    assert_eq!(msg.channel.topic, format!("/taxel/{sensor}/{stream}"));
+    assert_eq!(msg.channel.message_encoding, "json");
+    let schema = msg.channel.schema.as_ref().expect("schema");
+    assert_eq!(schema.encoding, "jsonschema");
+    let s: serde_json::Value = serde_json::from_slice(&schema.data).expect("schema JSON");
+    assert_eq!(s["type"], "object");
+    assert_eq!(j["seq"], *seq, "{ctx}");
+    assert_eq!(j["t_capture_ns"], *t, "{ctx}");
+    assert_eq!(j["sensor"], sensor.as_str(), "{ctx}");
+    assert_eq!(msg.log_time, *t, "{ctx}");
+}
+
+#[test]
+fn demo_recording_exports_to_mcap_and_replays_from_it() {
+    let prefix = unique_prefix("m");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().display().to_string();
+    let (code, stdout, stderr) = run(
+        &prefix,
+        &["demo", "--seconds", "4", "--rate-hz", "200", "--out", &out],
+    );
+    assert_eq!(code, 0, "demo failed:\n{stdout}\n{stderr}");
+    let taxrec = dir.path().join("demo.taxrec");
+    let records: Vec<Record> = RecordFileReader::open(&taxrec)
+        .expect("record file")
+        .collect();
+    let count = |want: &str| {
+        records
+            .iter()
+            .filter(|r| {
+                matches!(
+                    (want, r),
+                    ("raw", Record::Raw { .. })
+                        | ("force", Record::Force { .. })
+                        | ("curvature", Record::Curvature { .. })
+                        | ("reference", Record::Reference { .. })
+                )
+            })
+            .count()
+    };
+    for s in ["raw", "force", "curvature", "reference"] {
+        assert!(count(s) > 0, "the demo recorded no {s} samples");
+    }
+
+    // Export and read back with the mcap crate.
+    let mcap_path = dir.path().join("demo.mcap");
+    let (code, stdout, stderr) = run(
+        &prefix,
+        &[
+            "logger",
+            "export",
+            &taxrec.display().to_string(),
+            "--mcap",
+            &mcap_path.display().to_string(),
+        ],
+    );
+    assert_eq!(code, 0, "export failed:\n{stdout}\n{stderr}");
+    assert!(
+        stdout.contains(&format!("{} messages", records.len())),
+        "{stdout}"
+    );
+    let bytes = std::fs::read(&mcap_path).expect("mcap file");
+    let msgs: Vec<mcap::Message> = mcap::MessageStream::new(&bytes)
+        .expect("mcap")
+        .collect::<Result<_, _>>()
+        .expect("every message reads");
+    assert_eq!(msgs.len(), records.len(), "message count");
+    for (m, r) in msgs.iter().zip(&records) {
+        check(m, r);
+    }
+    let summary = mcap::Summary::read(&bytes)
+        .expect("summary")
+        .expect("file has a summary");
+    let topics: std::collections::BTreeSet<&str> = summary
+        .channels
+        .values()
+        .map(|c| c.topic.as_str())
+        .collect();
+    assert_eq!(
+        topics.into_iter().collect::<Vec<_>>(),
+        [
+            "/taxel/s0/curvature",
+            "/taxel/s0/force",
+            "/taxel/s0/raw",
+            "/taxel/s0/reference"
+        ]
+    );
+
+    // Replay the MCAP's raw channel as sensor r0 and record it again: every frame, in order,
+    // with the same counts.
+    let prefix2 = unique_prefix("mr");
+    let again = dir.path().join("again.taxrec");
+    let mut logger = spawn_ready(
+        "logger",
+        &prefix2,
+        &[
+            "logger",
+            "record",
+            "--sensor",
+            "r0",
+            "--out",
+            &again.display().to_string(),
+        ],
+        "logger ready",
+    );
+    let (code, stdout, stderr) = run(
+        &prefix2,
+        &[
+            "publisher",
+            "--sensor",
+            "r0",
+            "replay",
+            &mcap_path.display().to_string(),
+            "--speed",
+            "4",
+        ],
+    );
+    assert_eq!(code, 0, "replay failed:\n{stdout}\n{stderr}");
+    logger.sigint();
+    assert!(logger.wait_exit(Duration::from_secs(20)).success());
+    let original: Vec<Vec<f32>> = records
+        .iter()
+        .filter_map(|r| match r {
+            Record::Raw { counts, .. } => Some(counts.clone()),
+            _ => None,
+        })
+        .collect();
+    let replayed: Vec<Vec<f32>> = RecordFileReader::open(&again)
+        .expect("replayed record file")
+        .filter_map(|r| match r {
+            Record::Raw { counts, .. } => Some(counts),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(replayed.len(), original.len(), "replayed frame count");
+    assert!(replayed == original, "replayed counts differ");
+}
