@@ -62,6 +62,10 @@ pub struct EvalArgs {
     /// Columns of the array.
     #[arg(long)]
     pub cols: Option<usize>,
+    /// Write the figures (force over time: reference, curvature-aware and flat; error per
+    /// level; SVG and PNG) and eval.json (the report) into this directory.
+    #[arg(long)]
+    pub plots: Option<PathBuf>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -119,6 +123,10 @@ pub struct FitArgs {
     /// Draw the calibration surface (force vs reading at several curvatures) to .svg or .png.
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Write the calibration surface of every block (SVG and PNG) and fit.md (this report)
+    /// into this directory.
+    #[arg(long)]
+    pub plots: Option<PathBuf>,
 }
 
 /// Runs the calibrator CLI; the exit code follows the process conventions.
@@ -184,7 +192,7 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
         max_curvature_m1: a.max_curvature_m1,
     };
     let (text, cal, report) = fit_calibration(&recs, &opts).config_err()?;
-    for line in report {
+    for line in &report {
         println!("{line}");
     }
     if let Some(p) = &a.plot {
@@ -195,6 +203,40 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
         .with_context(|| format!("{}", a.out.display()))
         .runtime_err()?;
     println!("wrote {}", a.out.display());
+    if let Some(dir) = &a.plots {
+        let mut files = Vec::new();
+        for (i, b) in cal.blocks.iter().enumerate() {
+            files.extend(
+                taxel_plot::svg_and_png(dir, &format!("calibration-surface-b{i}"), |p| {
+                    crate::plots::block_surface(p, &cal, b)
+                })
+                .runtime_err()?,
+            );
+        }
+        files.extend(
+            taxel_plot::svg_and_png(dir, "calibration-surface-array", |p| {
+                crate::plots::block_surface(p, &cal, &cal.array)
+            })
+            .runtime_err()?,
+        );
+        let md = dir.join("fit.md");
+        let names: Vec<String> = files
+            .iter()
+            .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .collect();
+        std::fs::write(
+            &md,
+            format!(
+                "# Calibration fit -> {}\n\n{}\n\nFigures (force against reading at curvatures across the declared range, per block and for the whole array): {}\n",
+                a.out.display(),
+                report.join("\n\n"),
+                names.join(", ")
+            ),
+        )
+        .with_context(|| format!("{}", md.display()))
+        .runtime_err()?;
+        println!("report and figures: {}", dir.display());
+    }
     Ok(())
 }
 
@@ -215,6 +257,27 @@ fn eval(a: EvalArgs) -> Result<(), Failure> {
         .check_nodes(&a.curvature_model.display().to_string(), rec.n_nodes)
         .config_err()?;
     let r = crate::evaluate::evaluate(&rec, g, &model, &curve, &flat, &a.levels).config_err()?;
+    if let Some(dir) = &a.plots {
+        let name = a
+            .recording
+            .file_name()
+            .map_or(String::new(), |n| n.to_string_lossy().into_owned());
+        taxel_plot::svg_and_png(dir, "force-vs-time", |p| {
+            crate::plots::force_vs_time(p, &rec, &r, &name)
+        })
+        .runtime_err()?;
+        taxel_plot::svg_and_png(dir, "error-per-level", |p| {
+            crate::plots::error_per_level(p, &r, &name)
+        })
+        .runtime_err()?;
+        let p = dir.join("eval.json");
+        std::fs::write(&p, format!("{}\n", crate::evaluate::json(&r)))
+            .with_context(|| format!("{}", p.display()))
+            .runtime_err()?;
+        if !a.json {
+            println!("figures and eval.json: {}", dir.display());
+        }
+    }
     if a.json {
         println!("{}", crate::evaluate::json(&r));
         return Ok(());

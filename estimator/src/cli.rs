@@ -53,6 +53,10 @@ pub struct TrainArgs {
     /// MLP epochs (the paper: 500).
     #[arg(long, default_value_t = 500)]
     pub epochs: usize,
+    /// Write the figures (predicted vs true curvature and error vs curvature of the kept model
+    /// on the training data, SVG and PNG) and train.md (this report) into this directory.
+    #[arg(long)]
+    pub plots: Option<PathBuf>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -69,6 +73,10 @@ pub struct EvalArgs {
     /// Draw predicted vs true curvature to this file (.svg or .png).
     #[arg(long)]
     pub plot: Option<PathBuf>,
+    /// Write the figures (predicted vs true curvature, error vs curvature; SVG and PNG) and
+    /// eval.json (the metrics) into this directory.
+    #[arg(long)]
+    pub plots: Option<PathBuf>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -209,22 +217,73 @@ fn train(a: TrainArgs) -> Result<(), Failure> {
     })
     .config_err()?;
     bar.finish();
+    let mut report = Vec::new();
     for (name, m) in &model.training.candidates {
-        println!(
+        report.push(format!(
             "validation {name:>5}: R^2 {:.3}, MAE {:.2} 1/m, RMSE {:.2} 1/m (n = {})",
             m.r2, m.mae_m1, m.rmse_m1, m.n
-        );
+        ));
     }
     model.save(&a.out).runtime_err()?;
-    println!(
+    report.push(format!(
         "kept {} (version {:08x}), refitted on all {} samples in {:.1} s -> {}",
         model.kind,
         model.model_version,
         samples.len(),
         t0.elapsed().as_secs_f64(),
         a.out.display()
-    );
+    ));
+    for l in &report {
+        println!("{l}");
+    }
+    if let Some(dir) = &a.plots {
+        let pred = model.predict_samples(&samples);
+        let truth: Vec<f64> = samples.iter().map(|s| s.curvature_m1).collect();
+        let pairs: Vec<(f64, f64)> = truth.iter().copied().zip(pred.iter().copied()).collect();
+        let m = Metrics::of(&pred, &truth);
+        let what = format!("{} on its training data (in-sample)", model.kind);
+        let files = write_figures(dir, &pairs, &m, &what).runtime_err()?;
+        let md = dir.join("train.md");
+        let text = format!(
+            "# Curvature model training\n\n{}\n\nIn-sample on all {} samples: R^2 {:.3}, MAE {:.2} 1/m, RMSE {:.2} 1/m.\n\nFigures: {}\n",
+            report.join("\n\n"),
+            m.n,
+            m.r2,
+            m.mae_m1,
+            m.rmse_m1,
+            names(&files)
+        );
+        std::fs::write(&md, text)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", md.display()))
+            .runtime_err()?;
+        println!("report and figures: {}", dir.display());
+    }
     Ok(())
+}
+
+/// File names, comma separated (for the reports that list their figures).
+fn names(files: &[PathBuf]) -> String {
+    files
+        .iter()
+        .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Predicted-vs-true and error-vs-curvature figures, SVG and PNG, into `dir`.
+fn write_figures(
+    dir: &std::path::Path,
+    pairs: &[(f64, f64)],
+    m: &Metrics,
+    what: &str,
+) -> anyhow::Result<Vec<PathBuf>> {
+    let mut files = taxel_plot::svg_and_png(dir, "predicted-vs-true", |p| {
+        crate::plot::predicted_vs_true(p, pairs, m, what)
+    })?;
+    files.extend(taxel_plot::svg_and_png(dir, "error-vs-curvature", |p| {
+        crate::plot::error_vs_curvature(p, pairs, what)
+    })?);
+    Ok(files)
 }
 
 /// Metrics of a model on recordings, restricted to 0-80 1/m.
@@ -251,11 +310,19 @@ fn eval(a: EvalArgs) -> Result<(), Failure> {
     if let Some(p) = &a.plot {
         crate::plot::predicted_vs_true(p, &pairs, &m, &model.kind).runtime_err()?;
     }
+    let json = format!(
+        "{{\"r2\": {:.6}, \"mae_m1\": {:.6}, \"rmse_m1\": {:.6}, \"n\": {}}}",
+        m.r2, m.mae_m1, m.rmse_m1, m.n
+    );
+    if let Some(dir) = &a.plots {
+        write_figures(dir, &pairs, &m, &model.kind).runtime_err()?;
+        let p = dir.join("eval.json");
+        std::fs::write(&p, format!("{json}\n"))
+            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+            .runtime_err()?;
+    }
     if a.json {
-        println!(
-            "{{\"r2\": {:.6}, \"mae_m1\": {:.6}, \"rmse_m1\": {:.6}, \"n\": {}}}",
-            m.r2, m.mae_m1, m.rmse_m1, m.n
-        );
+        println!("{json}");
     } else {
         println!(
             "{} model {:08x} on {} sample(s), 0-80 1/m: R^2 {:.3}, MAE {:.2} 1/m, RMSE {:.2} 1/m",
@@ -263,6 +330,9 @@ fn eval(a: EvalArgs) -> Result<(), Failure> {
         );
         if let Some(p) = &a.plot {
             println!("plot: {}", p.display());
+        }
+        if let Some(d) = &a.plots {
+            println!("figures and eval.json: {}", d.display());
         }
     }
     Ok(())

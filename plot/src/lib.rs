@@ -3,7 +3,7 @@
 //! drawn with the bundled DejaVu Sans (assets/, with its licence), so no system font library is
 //! needed.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Once;
 
 use plotters::coord::Shift;
@@ -159,6 +159,23 @@ pub fn write(path: &Path, chart: &Chart) -> anyhow::Result<()> {
     .map_err(|e| anyhow::anyhow!("{}: {e:#}", path.display()))
 }
 
+/// Writes one figure twice, as `DIR/STEM.svg` and `DIR/STEM.png` (DIR is created), with
+/// `draw(path)`; returns both paths. Offline commands use it for their `--plots DIR`.
+pub fn svg_and_png(
+    dir: &Path,
+    stem: &str,
+    mut draw: impl FnMut(&Path) -> anyhow::Result<()>,
+) -> anyhow::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir).map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
+    let mut out = Vec::new();
+    for ext in ["svg", "png"] {
+        let p = dir.join(format!("{stem}.{ext}"));
+        draw(&p)?;
+        out.push(p);
+    }
+    Ok(out)
+}
+
 /// Scatter of `points` with the identity line over `range` (predicted vs true plots).
 pub fn scatter_with_identity(
     path: &Path,
@@ -214,5 +231,11 @@ mod tests {
             scatter_with_identity(&dir.path().join("a.jpg"), "t", "x", "y", &pts, (0.0, 1.0))
                 .is_err()
         );
+        let both = svg_and_png(&dir.path().join("sub"), "b", |p| {
+            scatter_with_identity(p, "t", "x (N)", "y (N)", &pts, (0.0, 25.0))
+        })
+        .expect("both");
+        assert_eq!(both.len(), 2);
+        assert!(both.iter().all(|p| p.exists()), "{both:?}");
     }
 }
