@@ -80,6 +80,15 @@ fn number_after(screen: &str, key: &str) -> Option<f64> {
     rest[..end].parse().ok()
 }
 
+/// The `k`-th word after process `name` in the process panel (0 health, 1 pid, 2 restarts).
+fn proc_field(screen: &str, name: &str, k: usize) -> Option<String> {
+    let i = screen.find(&format!("{name} "))? + name.len();
+    screen[i..]
+        .split_whitespace()
+        .nth(k)
+        .map(|w| w.trim_end_matches('│').to_string())
+}
+
 fn has_live_numbers(s: &str) -> bool {
     number_after(s, "rate ").is_some_and(|r| r > 0.0)
         && number_after(s, "frames ").is_some_and(|f| f > 0.0)
@@ -127,6 +136,32 @@ fn monitor_shows_live_sensors_switches_and_quits_cleanly() {
     assert!(s.contains("calibrator-s1"), "process table:\n{s}");
     assert!(s.contains("alive"), "process health:\n{s}");
     assert!(s.contains("calibration v"), "calibration:\n{s}");
+
+    // A calibration edit shows up as a reload.
+    let cal = dir.path().join("calibration.toml");
+    let text = std::fs::read_to_string(&cal).expect("demo calibration");
+    assert!(text.contains("version = 1"), "{text}");
+    std::fs::write(&cal, text.replace("version = 1", "version = 2")).expect("edit calibration");
+    tmux.wait_screen("the reloaded calibration", |s| {
+        s.contains("calibration v2 gen 2 | reloaded")
+    });
+
+    // A killed publisher is restarted by the demo's supervisor: the monitor sees a new node.
+    let pid: i32 = proc_field(&s, "publisher-s1", 1)
+        .and_then(|p| p.parse().ok())
+        .expect("publisher-s1 pid on screen");
+    // SAFETY: kill(2) on a process of the demo this test started.
+    unsafe {
+        libc::kill(pid, libc::SIGKILL);
+    }
+    tmux.wait_screen("the publisher's restart", |s| {
+        proc_field(s, "publisher-s1", 0) == Some("restarting".into())
+            && proc_field(s, "publisher-s1", 2) == Some("r1".into())
+    });
+    tmux.wait_screen("the restarted publisher alive", |s| {
+        proc_field(s, "publisher-s1", 0) == Some("alive".into())
+            && proc_field(s, "publisher-s1", 1) != Some(pid.to_string())
+    });
 
     tmux.keys("v");
     tmux.wait_screen("the baseline-subtracted view", |s| {

@@ -145,8 +145,8 @@ fn list_nodes(config: &iceoryx2::config::Config, own: &str) -> Vec<NodeSeen> {
     let mut out = Vec::new();
     let _ = Node::<iox::Service>::list(config, |state| {
         let (view_alive, details, id) = match &state {
-            NodeState::Alive(v) => (true, v.details().clone(), format!("{:?}", v.id())),
-            NodeState::Dead(v) => (false, v.details().clone(), format!("{:?}", v.id())),
+            NodeState::Alive(v) => (true, v.details().clone(), v.id().to_string()),
+            NodeState::Dead(v) => (false, v.details().clone(), v.id().to_string()),
             _ => return CallbackProgression::Continue,
         };
         if let Some(d) = details {

@@ -281,6 +281,9 @@ fn draw_sparklines(f: &mut Frame, area: Rect, s: &SensorState) {
     }
 }
 
+/// Width of one entry of the process panel.
+const CELL: usize = 38;
+
 fn draw_procs(f: &mut Frame, area: Rect, m: &Model) {
     let now = Instant::now();
     let stream_of = |name: &str| -> Option<Option<Instant>> {
@@ -292,8 +295,8 @@ fn draw_procs(f: &mut Frame, area: Rect, m: &Model) {
             _ => None,
         }
     };
-    // Entries in columns of CELL characters: name, health, pid, restarts.
-    const CELL: usize = 39;
+    // Entries in columns of CELL characters: name (15 + 1), health (10 + 1), pid (7), restarts
+    // (" r<n>", 3) and a 1-character gap.
     let per_row = ((area.width as usize).saturating_sub(2) / CELL).max(1);
     let mut lines: Vec<Line> = Vec::new();
     let mut row: Vec<Span> = Vec::new();
@@ -304,16 +307,16 @@ fn draw_procs(f: &mut Frame, area: Rect, m: &Model) {
             Health::Stale => Color::Yellow,
             _ => Color::Red,
         };
-        row.push(Span::raw(format!("{:<18} ", p.name)));
+        row.push(Span::raw(format!("{:<15} ", p.name)));
         row.push(Span::styled(
             format!("{:<10} ", h.label()),
             Style::default().fg(color),
         ));
-        row.push(Span::raw(format!("{:<7} ", p.pid)));
+        row.push(Span::raw(format!("{:<7}", p.pid)));
         row.push(Span::raw(if p.restarts > 0 {
-            format!("r{:<1} ", p.restarts)
+            format!(" r{:<1} ", p.restarts)
         } else {
-            "   ".into()
+            "    ".into()
         }));
         if (i + 1) % per_row == 0 {
             lines.push(Line::from(std::mem::take(&mut row)));
@@ -337,7 +340,7 @@ fn draw_procs(f: &mut Frame, area: Rect, m: &Model) {
 
 /// Lines the process panel needs (borders included).
 pub(crate) fn procs_height(m: &Model, width: u16) -> u16 {
-    let per_row = ((width as usize).saturating_sub(2) / 39).max(1);
+    let per_row = ((width as usize).saturating_sub(2) / CELL).max(1);
     let n = m.procs.by_name.len().max(1);
     (n.div_ceil(per_row) + 2).min(12) as u16
 }
