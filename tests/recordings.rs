@@ -227,4 +227,20 @@ fn demo_recording_exports_to_mcap_and_replays_from_it() {
         .collect();
     assert_eq!(replayed.len(), original.len(), "replayed frame count");
     assert!(replayed == original, "replayed counts differ");
+
+    // A damaged MCAP is refused with a one-line error naming it (exit 2).
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() / 3]).expect("write cut file");
+    let (code, _, err) = run(
+        &prefix2,
+        &[
+            "publisher",
+            "--sensor",
+            "r0",
+            "replay",
+            &cut.display().to_string(),
+        ],
+    );
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("cut.mcap: unreadable after"), "{err}");
 }

@@ -22,15 +22,23 @@ pub use json::{json_schema, CURVATURE_SCHEMA, FORCE_SCHEMA, RAW_SCHEMA, REFERENC
 /// Why an MCAP file could not be written or read.
 #[derive(Debug, thiserror::Error)]
 pub enum McapError {
-    #[error("{path}: {source}")]
+    // The underlying errors are part of the one-line message, not a `source` chain, so that
+    // `{:#}` does not print them twice.
+    #[error("{path}: {error}")]
     Io {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Mcap {
         path: PathBuf,
-        source: ::mcap::McapError,
+        error: ::mcap::McapError,
+    },
+    #[error("{path}: unreadable after {index} messages: {error}")]
+    Stream {
+        path: PathBuf,
+        index: usize,
+        error: ::mcap::McapError,
     },
     #[error("{path}: message {index} on {topic}: {reason}")]
     Message {
@@ -58,18 +66,18 @@ pub struct McapRecordWriter {
 
 impl McapRecordWriter {
     pub fn create(path: &Path) -> Result<McapRecordWriter, McapError> {
-        let file = File::create(path).map_err(|source| McapError::Io {
+        let file = File::create(path).map_err(|error| McapError::Io {
             path: path.to_path_buf(),
-            source,
+            error,
         })?;
         let w = ::mcap::WriteOptions::new()
             .compression(None)
             .profile("")
             .library(concat!("taxel/", env!("CARGO_PKG_VERSION")))
             .create(BufWriter::new(file))
-            .map_err(|source| McapError::Mcap {
+            .map_err(|error| McapError::Mcap {
                 path: path.to_path_buf(),
-                source,
+                error,
             })?;
         Ok(McapRecordWriter {
             w,
@@ -80,10 +88,10 @@ impl McapRecordWriter {
         })
     }
 
-    fn err(&self, source: ::mcap::McapError) -> McapError {
+    fn err(&self, error: ::mcap::McapError) -> McapError {
         McapError::Mcap {
             path: self.path.clone(),
-            source,
+            error,
         }
     }
 
@@ -156,19 +164,20 @@ pub struct McapMessage {
 /// Reads every taxel message of an MCAP file, in file order. Channels with other schemas are
 /// an error naming the topic.
 pub fn read_messages(path: &Path) -> Result<Vec<McapMessage>, McapError> {
-    let bytes = std::fs::read(path).map_err(|source| McapError::Io {
+    let bytes = std::fs::read(path).map_err(|error| McapError::Io {
         path: path.to_path_buf(),
-        source,
+        error,
     })?;
-    let stream = ::mcap::MessageStream::new(&bytes).map_err(|source| McapError::Mcap {
+    let stream = ::mcap::MessageStream::new(&bytes).map_err(|error| McapError::Mcap {
         path: path.to_path_buf(),
-        source,
+        error,
     })?;
     let mut out = Vec::new();
     for (index, m) in stream.enumerate() {
-        let m = m.map_err(|source| McapError::Mcap {
+        let m = m.map_err(|error| McapError::Stream {
             path: path.to_path_buf(),
-            source,
+            index,
+            error,
         })?;
         let topic = m.channel.topic.clone();
         let schema = m.channel.schema.as_ref().map(|s| s.name.clone());
@@ -479,6 +488,8 @@ mod tests {
         w.finish().expect("finish");
         let bytes = std::fs::read(&good).expect("read");
         std::fs::write(&p, &bytes[..bytes.len() / 2]).expect("write");
-        assert!(read_messages(&p).is_err());
+        let e = read_messages(&p).expect_err("cut short").to_string();
+        assert!(e.contains("bad.mcap: unreadable after"), "{e}");
+        assert_eq!(e.matches("ended in the middle").count(), 1, "{e}");
     }
 }
