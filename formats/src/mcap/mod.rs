@@ -168,7 +168,12 @@ pub fn read_messages(path: &Path) -> Result<Vec<McapMessage>, McapError> {
         path: path.to_path_buf(),
         error,
     })?;
-    let stream = ::mcap::MessageStream::new(&bytes).map_err(|error| McapError::Mcap {
+    parse_messages(path, &bytes)
+}
+
+/// [`read_messages`] on bytes already read from `path`.
+fn parse_messages(path: &Path, bytes: &[u8]) -> Result<Vec<McapMessage>, McapError> {
+    let stream = ::mcap::MessageStream::new(bytes).map_err(|error| McapError::Mcap {
         path: path.to_path_buf(),
         error,
     })?;
@@ -458,6 +463,35 @@ mod tests {
         assert_eq!(r.recording.trial.as_deref(), Some(&[-1][..]));
         let e = read_recording(&p, Some("glove-1")).err().expect("no raw");
         assert!(e.to_string().contains("glove-1"), "{e}");
+    }
+
+    #[test]
+    fn damaged_files_never_panic() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let good = dir.path().join("good.mcap");
+        let mut w = McapRecordWriter::create(&good).expect("create");
+        for r in records() {
+            w.write(&r).expect("write");
+        }
+        w.finish().expect("finish");
+        let bytes = std::fs::read(&good).expect("read");
+        let p = dir.path().join("bad.mcap");
+        // Every cut, and a deterministic spread of byte flips: an error or the messages, never
+        // a panic.
+        let mut x = 0x9e37_79b9_u32;
+        for k in 0..bytes.len() + 300 {
+            let mut b = bytes.clone();
+            if k < bytes.len() {
+                b.truncate(k);
+            } else {
+                x ^= x << 13;
+                x ^= x >> 17;
+                x ^= x << 5;
+                let i = x as usize % b.len();
+                b[i] ^= (x >> 8) as u8 | 1;
+            }
+            let _ = parse_messages(&p, &b);
+        }
     }
 
     #[test]
