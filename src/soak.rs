@@ -75,12 +75,22 @@ impl Rng {
 /// What the probe saw of one sensor.
 #[derive(Default)]
 struct SensorLog {
-    raw_t: Vec<u64>,
+    raw_seen: u64,
     raw_gap_flags: u64,
     /// Raw frames the probe itself missed (seq jumps within one publisher incarnation).
     raw_probe_missed: u64,
     last_raw_seq: Option<u64>,
-    force_t: Vec<u64>,
+    /// Force samples seen.
+    delivered: u64,
+    /// (seq, t_capture_ns) of the last force sample seen.
+    last_force: Option<(u64, u64)>,
+    /// Frames of the force stream's publisher incarnations, first to last seq seen.
+    published: u64,
+    /// Jumps in the force seq that the calibrator flagged GAP_BEFORE (it never produced those
+    /// samples): (t_capture_ns of the sample after the jump, frames missing).
+    flagged_gaps: Vec<(u64, u64)>,
+    /// Jumps without the flag: the calibrator sent them, the probe did not read them in time.
+    force_probe_missed: u64,
     flagged: u64,
     flag_counts: BTreeMap<&'static str, u64>,
 }
@@ -111,7 +121,7 @@ fn probe(
     while !stop.load(Ordering::SeqCst) {
         for ((raw, force), log) in subs.iter().zip(logs.iter_mut()) {
             raw.poll_each(|f| {
-                log.raw_t.push(f.t_capture_ns);
+                log.raw_seen += 1;
                 if f.flags & raw_flags::GAP_BEFORE != 0 {
                     log.raw_gap_flags += 1;
                 }
@@ -124,7 +134,23 @@ fn probe(
                 Ok(())
             })?;
             force.poll_each(|f| {
-                log.force_t.push(f.t_capture_ns);
+                log.delivered += 1;
+                match log.last_force {
+                    // Same publisher incarnation (a restarted one counts from 0 again).
+                    Some((l, _)) if f.seq > l => {
+                        log.published += f.seq - l;
+                        let missing = f.seq - l - 1;
+                        if missing > 0 {
+                            if f.flags & force_flags::GAP_BEFORE != 0 {
+                                log.flagged_gaps.push((f.t_capture_ns, missing));
+                            } else {
+                                log.force_probe_missed += missing;
+                            }
+                        }
+                    }
+                    _ => log.published += 1,
+                }
+                log.last_force = Some((f.seq, f.t_capture_ns));
                 if f.flags & FLAGS.iter().fold(0, |a, (b, _)| a | b) != 0 {
                     log.flagged += 1;
                     for (bit, name) in FLAGS {
@@ -302,7 +328,6 @@ fn run(a: SoakArgs) -> anyhow::Result<ExitCode> {
             }
         }
     });
-    let t_stop_ns = now_ns();
     let outcome = sup.stop();
     stop.store(true, Ordering::SeqCst);
     let logs = match probe_thread.join() {
@@ -310,7 +335,7 @@ fn run(a: SoakArgs) -> anyhow::Result<ExitCode> {
         Err(_) => anyhow::bail!("soak probe panicked"),
     };
     let (sm_line, sm_clean) = sup.shared_memory_report();
-    let report = count(&a, &ids, &logs, &sup, &kills, t_stop_ns);
+    let report = count(&ids, &logs, &sup, &kills);
     let all_ok = outcome.all_ok && sm_clean && report.lost == 0 && edit_errors == 0;
     let peaks: Vec<String> = sup
         .slots
@@ -334,7 +359,7 @@ fn run(a: SoakArgs) -> anyhow::Result<ExitCode> {
         .collect();
     if a.json {
         println!(
-            "{{\"seconds\": {:.1}, \"sensors\": {}, \"rate_hz\": {}, \"kills\": [{}], \"restarts\": {{{}}}, \"calibration_edits\": {edits}, \"published\": {}, \"delivered\": {}, \"flagged\": {}, \"flags\": {{{}}}, \"lost\": {}, \"lost_in_downtime\": {}, \"probe_missed\": {}, \"raw_gap_flags\": {}, \"peak_rss_mb\": {{{}}}, \"exit_ok\": {}, \"shm_clean\": {sm_clean}}}",
+            "{{\"seconds\": {:.1}, \"sensors\": {}, \"rate_hz\": {}, \"kills\": [{}], \"restarts\": {{{}}}, \"calibration_edits\": {edits}, \"published\": {}, \"delivered\": {}, \"flagged\": {}, \"flags\": {{{}}}, \"lost\": {}, \"lost_in_downtime\": {}, \"probe_missed\": {}, \"raw_probe_missed\": {}, \"raw_gap_flags\": {}, \"peak_rss_mb\": {{{}}}, \"exit_ok\": {}, \"shm_clean\": {sm_clean}}}",
             t0.elapsed().as_secs_f64(),
             ids.len(),
             a.rate_hz,
@@ -347,6 +372,7 @@ fn run(a: SoakArgs) -> anyhow::Result<ExitCode> {
             report.lost,
             report.lost_in_downtime,
             report.probe_missed,
+            report.raw_probe_missed,
             report.raw_gap_flags,
             peaks.join(", "),
             outcome.all_ok,
@@ -359,7 +385,7 @@ fn run(a: SoakArgs) -> anyhow::Result<ExitCode> {
             outcome.restarts
         );
         println!(
-            "  frames published {} | delivered {} | flagged {} ({}) | lost {} (+ {} during the killed calibrator's downtime) | missed by the probe {}",
+            "  frames published {} | delivered {} | flagged {} ({}) | lost {} (+ {} during the killed calibrator's downtime) | sent but missed by the probe {}",
             report.published,
             report.delivered,
             report.flagged,
@@ -393,71 +419,59 @@ struct Report {
     lost: u64,
     lost_in_downtime: u64,
     probe_missed: u64,
+    raw_probe_missed: u64,
     raw_gap_flags: u64,
 }
 
 /// Frames in flight in a calibrator when it is killed: captured up to this long before the kill.
 const IN_FLIGHT_NS: u64 = 50_000_000;
-/// Frames captured this close to the stop are not counted (the stop is not a fault).
-const TAIL_NS: u64 = 500_000_000;
 
-/// Counts per sensor, from each sensor's first delivered force sample to shortly before the
-/// stop: a raw frame without a force sample of the same capture time is lost, unless it was
-/// captured while that sensor's calibrator was down (from [`IN_FLIGHT_NS`] before it died to
-/// the first force sample of its replacement).
-fn count(
-    a: &SoakArgs,
-    ids: &[String],
-    logs: &[SensorLog],
-    sup: &Supervisor,
-    kills: &[Kill],
-    t_stop_ns: u64,
-) -> Report {
-    let _ = a;
+/// Counts per sensor on the force stream, whose `seq` is the publisher's frame number: every
+/// frame from the first to the last force sample the probe saw of each publisher incarnation
+/// was published. A frame missing from the force stream behind a sample flagged `GAP_BEFORE`
+/// was never produced by the calibrator: lost, or lost during downtime when that sample is the
+/// first of a restarted calibrator (captured between [`IN_FLIGHT_NS`] before the kill and the
+/// replacement's first sample). A missing frame behind an unflagged sample was produced but
+/// not read in time by the probe itself (its 64-sample buffer overflowed): `probe_missed`.
+fn count(ids: &[String], logs: &[SensorLog], sup: &Supervisor, kills: &[Kill]) -> Report {
     let mut r = Report::default();
     for (id, log) in ids.iter().zip(logs) {
-        let mut force = log.force_t.clone();
-        force.sort_unstable();
-        force.dedup();
-        let Some(&first) = force.first() else {
-            continue;
-        };
-        let end = t_stop_ns.saturating_sub(TAIL_NS);
         let cal_name = format!("calibrator-{id}");
-        let windows: Vec<(u64, u64)> = sup
+        // Each calibrator death starts a downtime; the first flagged gap after it (the
+        // replacement's first sample) is that downtime.
+        let mut downtime_gap = vec![false; log.flagged_gaps.len()];
+        for d in sup
             .slots
             .iter()
             .filter(|s| s.spec.name == cal_name)
             .flat_map(|s| s.downtimes.iter())
-            .map(|d| {
-                let killed = kills
-                    .iter()
-                    .filter(|k| k.name == cal_name && k.at_ns <= d.died_ns)
-                    .map(|k| k.at_ns)
-                    .next_back()
-                    .unwrap_or(d.died_ns);
-                let resumed = d
-                    .restarted_ns
-                    .and_then(|t| force.iter().find(|&&f| f >= t).copied())
-                    .unwrap_or(u64::MAX);
-                (killed.saturating_sub(IN_FLIGHT_NS), resumed)
-            })
-            .collect();
-        for &t in log.raw_t.iter().filter(|&&t| t >= first && t < end) {
-            r.published += 1;
-            if force.binary_search(&t).is_ok() {
-                r.delivered += 1;
-            } else if windows.iter().any(|&(s, e)| t >= s && t < e) {
-                r.lost_in_downtime += 1;
-            } else {
-                r.lost += 1;
+        {
+            let killed = kills
+                .iter()
+                .filter(|k| k.name == cal_name && k.at_ns <= d.died_ns)
+                .map(|k| k.at_ns)
+                .next_back()
+                .unwrap_or(d.died_ns);
+            let start = killed.saturating_sub(IN_FLIGHT_NS);
+            if let Some(i) = log.flagged_gaps.iter().position(|&(t, _)| t >= start) {
+                downtime_gap[i] = true;
             }
         }
+        for (&(_, missing), downtime) in log.flagged_gaps.iter().zip(downtime_gap) {
+            if downtime {
+                r.lost_in_downtime += missing;
+            } else {
+                r.lost += missing;
+            }
+        }
+        r.published += log.published;
+        r.delivered += log.delivered;
         r.flagged += log.flagged;
         for (k, v) in &log.flag_counts {
             *r.flag_counts.entry(k).or_default() += v;
         }
-        r.probe_missed += log.raw_probe_missed;
+        r.probe_missed += log.force_probe_missed;
+        r.raw_probe_missed += log.raw_probe_missed;
         r.raw_gap_flags += log.raw_gap_flags;
     }
     r
