@@ -30,7 +30,7 @@ pub struct Options {
 impl Default for Options {
     fn default() -> Self {
         Options {
-            max_evals: 60,
+            max_evals: 40,
             max_effects: 4,
             unexplained_ratio: 3.0,
         }
@@ -43,6 +43,8 @@ pub struct Trial {
     pub round: usize,
     pub effect: String,
     pub verdict: Verdict,
+    /// Time spent testing it (s).
+    pub seconds: f64,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -93,14 +95,18 @@ fn effect_params(
     let mut p = BTreeMap::new();
     match e {
         EffectKind::Creep => {
-            if let Some((c, tau)) = cfg.creep {
-                p.insert("amplitude".into(), c);
-                p.insert("tau_s".into(), tau);
+            if let Some(terms) = cfg.creep {
+                let mut t = terms;
+                t.sort_by(|a, b| a.1.total_cmp(&b.1));
+                p.insert("amplitude_fast".into(), t[0].0);
+                p.insert("tau_fast_s".into(), t[0].1);
+                p.insert("amplitude_slow".into(), t[1].0);
+                p.insert("tau_slow_s".into(), t[1].1);
             }
         }
         EffectKind::Hysteresis => {
-            if let Some((w, r)) = cfg.hysteresis {
-                p.insert("weight".into(), w);
+            if let Some((_, r)) = cfg.hysteresis {
+                p.insert("weight".into(), hysteresis_weight(ds, cfg, theta));
                 p.insert("threshold_n".into(), r);
             }
         }
@@ -120,24 +126,33 @@ fn effect_params(
         },
         EffectKind::CurvatureSensitivity => {
             if let Some(v) = cfg.curv_sens {
-                if ds.kappa.is_some() {
-                    p.insert("kappa_s_m1".into(), v);
-                } else {
-                    p.insert("beta_per_log_baseline_shift".into(), v);
-                }
+                let form = if cfg.curv_linear { 1.0 } else { 0.0 };
+                p.insert("linear_form".into(), form);
+                match (ds.kappa.is_some(), cfg.curv_linear) {
+                    (true, false) => p.insert("kappa_s_m1".into(), v),
+                    (true, true) => p.insert("kappa_zero_m1".into(), v),
+                    (false, _) => p.insert("beta_per_log_baseline_shift".into(), v),
+                };
             }
         }
         EffectKind::CurvatureBaseline => {
+            let slopes: Vec<f64> = theta
+                .iter()
+                .filter(|t| t.len() >= 3 && t[0].abs() > 0.0)
+                .map(|t| t[1] / t[0])
+                .collect();
+            let mean = slopes.iter().sum::<f64>() / slopes.len().max(1) as f64;
+            let lo = slopes.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = slopes.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
             if ds.kappa.is_some() {
-                let slopes: Vec<f64> = theta
-                    .iter()
-                    .filter(|t| t.len() >= 3 && t[0].abs() > 0.0)
-                    .map(|t| t[1] / t[0])
-                    .collect();
-                let mean = slopes.iter().sum::<f64>() / slopes.len().max(1) as f64;
                 p.insert("mean_g1_m".into(), mean);
+                p.insert("min_g1_m".into(), lo);
+                p.insert("max_g1_m".into(), hi);
             } else {
                 p.insert("trials".into(), ds.n_trials as f64);
+                p.insert("mean_slope_per_log_shift".into(), mean);
+                p.insert("min_slope_per_log_shift".into(), lo);
+                p.insert("max_slope_per_log_shift".into(), hi);
             }
         }
         EffectKind::Saturation => {
@@ -156,6 +171,51 @@ fn effect_params(
     }
     p
 }
+
+/// The play operator's share of the load, `w`, implied by the fitted per-node hysteresis
+/// amplitudes: `h_k = a_k n F^(n-1) w` at the mean loaded force (median over responsive nodes).
+pub fn hysteresis_weight(ds: &Dataset, cfg: &Config, theta: &[Vec<f64>]) -> f64 {
+    let fmax = ds.max_force();
+    let loaded: Vec<f64> = ds
+        .force
+        .iter()
+        .copied()
+        .filter(|&f| f > 0.1 * fmax)
+        .collect();
+    let fbar = loaded.iter().sum::<f64>() / loaded.len().max(1) as f64;
+    let amax = theta.iter().map(|t| t[t.len() - 1]).fold(0.0, f64::max);
+    let mut w: Vec<f64> = theta
+        .iter()
+        .filter(|t| t.len() >= 4 && t[t.len() - 1] > 0.2 * amax && amax > 0.0)
+        .map(|t| {
+            let a = t[t.len() - 1];
+            // Both plays' amplitudes, the wide one counted at its larger gap.
+            let h = t[t.len() - 3] + 4.0 * t[t.len() - 2];
+            h / (a * cfg.exponent * fbar.max(1e-9).powf(cfg.exponent - 1.0))
+        })
+        .collect();
+    if w.is_empty() {
+        return 0.0;
+    }
+    w.sort_by(f64::total_cmp);
+    w[w.len() / 2].clamp(0.0, 1.0)
+}
+
+/// Physics an effect must show beyond a lower error: thermal drift inferred without a
+/// temperature column must also improve the no-load samples (temperature moves unloaded
+/// nodes; creep and hysteresis cannot).
+fn signature_check(ds: &Dataset, e: EffectKind, v: &mut Verdict) {
+    // With a temperature column the correlation with the recorded temperature is the evidence;
+    // without one, a slow common-mode factor could also mimic slow creep, so it must show on
+    // unloaded samples too.
+    if e == EffectKind::ThermalDrift && ds.temp.is_none() && v.rest_block_t < MIN_REST_T {
+        v.accepted = false;
+        v.keep = false;
+    }
+}
+
+/// Block t statistic thermal drift needs on no-load samples.
+pub const MIN_REST_T: f64 = 2.0;
 
 /// The locating regressor(s) that speak for an effect.
 pub fn signature(e: EffectKind) -> &'static [&'static str] {
@@ -239,7 +299,6 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
     let cfg0 = Config::base(start.material.exponent, start.material.r_floor_ohm);
     let bp = base_params(&cfg0);
     let base_cv = cross_validate(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
-    let tau = tau_int(&base_cv.resid, ds.len(), ds.n);
     let base = fit_all(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
     let base_eval = evaluate(&ctx, &base, &|_| true);
     let base_findings = locate(&ctx, &base_cv.resid, &base_eval.pred);
@@ -264,15 +323,24 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
             if cur.has(e) || applicable(&ctx, &cur, e).is_err() {
                 continue;
             }
+            let tc = Instant::now();
             let (starts, params) = candidate(&ctx, &cur, e);
             let cv = cross_validate(&ctx, &starts, &params, ev_n);
-            let v = compare(&cur_cv, &cv, n_params(&ctx, e), tau);
+            let mut v = compare(
+                &cur_cv,
+                &cv,
+                n_params(&ctx, e),
+                tau_int(&cv.resid, ds.len(), ds.n),
+                ds.len(),
+            );
+            signature_check(ds, e, &mut v);
             trials.push(Trial {
                 round,
                 effect: e.name().to_string(),
                 verdict: v,
+                seconds: tc.elapsed().as_secs_f64(),
             });
-            if v.accepted && best.as_ref().is_none_or(|b| v.ic_gain > b.2.ic_gain) {
+            if v.accepted && best.as_ref().is_none_or(|b| v.rel_gain > b.2.rel_gain) {
                 best = Some((e, cv, v, starts, params));
             }
         }
@@ -283,7 +351,7 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
         cur = fit_all(
             &ctx,
             std::slice::from_ref(&added),
-            &all_params(&added),
+            &all_params(&added, ds.kappa.is_some()),
             ev_n * 2,
         );
         cur_cv = cv;
@@ -302,12 +370,19 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
                 &base_params(&minus),
                 ev_n,
             );
-            let v = compare(&cv_minus, &cur_cv, n_params(&ctx, e), tau);
-            if !v.accepted && effects.len() >= 2 {
+            let mut v = compare(
+                &cv_minus,
+                &cur_cv,
+                n_params(&ctx, e),
+                tau_int(&cur_cv.resid, ds.len(), ds.n),
+                ds.len(),
+            );
+            signature_check(ds, e, &mut v);
+            if !v.keep && effects.len() >= 2 {
                 cur = fit_all(
                     &ctx,
                     std::slice::from_ref(&minus),
-                    &all_params(&minus),
+                    &all_params(&minus, ds.kappa.is_some()),
                     ev_n * 2,
                 );
                 cur_cv = cv_minus;
@@ -339,7 +414,13 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
             }
         })
         .collect();
-    let unexplained = find_unexplained(&ctx, &cur_cv, &final_findings, opts.unexplained_ratio);
+    let unexplained = find_unexplained(
+        &ctx,
+        &base_cv,
+        &cur_cv,
+        &final_findings,
+        opts.unexplained_ratio,
+    );
     let verdict = if !unexplained.is_empty() {
         "unexplained"
     } else if effects.is_empty() {
@@ -373,10 +454,22 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
 }
 
 /// Structure left after the final model: nodes whose held-out residual stands far above their
-/// own noise floor and above the other nodes, or the whole array when every node does.
-fn find_unexplained(ctx: &Context, cv: &Cv, f: &Findings, limit: f64) -> Vec<Unexplained> {
+/// own noise floor and above the other nodes, or the whole array when every node does. Structure
+/// counts as unexplained only where the named effects removed less than three quarters of the
+/// base model's excess over noise there (what is left of a named effect whose true form differs
+/// from the tool's is not "unexplained").
+fn find_unexplained(
+    ctx: &Context,
+    base_cv: &Cv,
+    cv: &Cv,
+    f: &Findings,
+    limit: f64,
+) -> Vec<Unexplained> {
     let ds = ctx.ds;
     let stats = node_stats(ctx, &cv.resid);
+    let base_stats = node_stats(ctx, &base_cv.resid);
+    let excess = |s: &crate::locate::NodeStat| (s.rms * s.rms - s.noise * s.noise).max(0.0);
+    let mostly_left = |k: usize| excess(&stats[k]) > 0.25 * excess(&base_stats[k]);
     let mut ratios: Vec<f64> = stats.iter().map(|s| s.ratio).collect();
     ratios.sort_by(f64::total_cmp);
     let median = ratios[ratios.len() / 2];
@@ -398,7 +491,7 @@ fn find_unexplained(ctx: &Context, cv: &Cv, f: &Findings, limit: f64) -> Vec<Une
     if ds.n >= 3 {
         let bad: Vec<usize> = stats
             .iter()
-            .filter(|s| s.ratio > limit && s.ratio > 2.5 * median.max(1.0))
+            .filter(|s| s.ratio > limit && s.ratio > 2.5 * median.max(1.0) && mostly_left(s.node))
             .map(|s| s.node)
             .collect();
         for &k in &bad {
@@ -430,7 +523,9 @@ fn find_unexplained(ctx: &Context, cv: &Cv, f: &Findings, limit: f64) -> Vec<Une
             return out;
         }
     }
-    if median > limit {
+    let left: f64 = stats.iter().map(excess).sum();
+    let was: f64 = base_stats.iter().map(excess).sum();
+    if median > limit && left > 0.25 * was {
         let all: Vec<usize> = (0..ds.n).collect();
         let sp = spans(ctx, &cv.resid, &all, 2.0);
         let (t0, t1) = sp

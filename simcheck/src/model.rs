@@ -67,14 +67,17 @@ pub struct Config {
     pub r_floor_ohm: f64,
     pub sat_in_base: bool,
     pub saturation: bool,
-    /// Creep `(c, tau_s)`: `L + c lowpass_tau(L)`.
-    pub creep: Option<(f64, f64)>,
+    /// Creep as two Prony terms `(c, tau_s)`: `L + sum c lowpass_tau(L)` (a fast and a slow
+    /// one; together they follow log-time creep over two decades).
+    pub creep: Option<[(f64, f64); 2]>,
     /// Hysteresis `(w, r_n)`: `(1 - w) L + w play_r(L)`.
     pub hysteresis: Option<(f64, f64)>,
     pub thermal: Option<Thermal>,
     /// Curvature sensitivity: `kappa_s` (1/m) with a curvature column, else `beta` (per unit
     /// log-baseline shift of the trial).
     pub curv_sens: Option<f64>,
+    /// Linear form `1 - kappa / v` (or `1 - beta d`) instead of `1 / (1 + kappa / v)`.
+    pub curv_linear: bool,
     pub curv_base: bool,
     /// Row crosstalk: switch + thread resistance (ohm).
     pub crosstalk: Option<f64>,
@@ -93,6 +96,7 @@ impl Config {
             hysteresis: None,
             thermal: None,
             curv_sens: None,
+            curv_linear: false,
             curv_base: false,
             crosstalk: None,
             scan_skew: None,
@@ -261,23 +265,21 @@ pub struct Eval {
     pub train_sse: f64,
 }
 
-/// The load transform: hysteresis (play operator), then creep, then the power law.
+/// The load transform: creep, then the power law. (Hysteresis enters as its own per-node
+/// term, see [`play_gap`].)
 pub fn load_series(f: impl Iterator<Item = f64>, dt: &[f64], cfg: &Config, out: &mut Vec<f64>) {
     out.clear();
-    let mut z: Option<f64> = None;
-    let mut s: Option<f64> = None;
+    let mut s = [0.0f64; 2];
     for (i, fi) in f.enumerate() {
         let mut l = fi.max(0.0);
-        if let Some((w, r)) = cfg.hysteresis {
-            let zz = z.map_or(l, |z| z.clamp(l - r, l + r));
-            z = Some(zz);
-            l = (1.0 - w) * l + w * zz;
-        }
-        if let Some((c, tau)) = cfg.creep {
-            let beta = 1.0 - (-dt[i] / tau).exp();
-            let ss = s.map_or(0.0, |s| s + (l - s) * beta);
-            s = Some(ss);
-            l += c * ss;
+        if let Some(terms) = cfg.creep {
+            let base = l;
+            for (st, (c, tau)) in s.iter_mut().zip(terms) {
+                if i > 0 {
+                    *st += (base - *st) * (1.0 - (-dt[i] / tau).exp());
+                }
+                l += c * *st;
+            }
         }
         out.push(l.max(0.0).powf(cfg.exponent));
     }
@@ -320,6 +322,38 @@ fn interp(t: &[f64], f: &[f64], x: f64) -> f64 {
     let (t0, t1) = (t[j - 1], t[j]);
     let w = if t1 > t0 { (x - t0) / (t1 - t0) } else { 0.0 };
     f[j - 1] * (1.0 - w) + f[j] * w
+}
+
+/// Hysteresis as a play operator of half-width `r` (N) on the total force: `play_r(F) - F`,
+/// between -r (loading) and +r (unloading). Each node scales it by its own amplitude.
+pub fn play_gap(f: &[f64], r: f64) -> Vec<f64> {
+    let mut z: Option<f64> = None;
+    f.iter()
+        .map(|&fi| {
+            let l = fi.max(0.0);
+            let zz = z.map_or(l, |z: f64| z.clamp(l - r, l + r));
+            z = Some(zz);
+            zz - l
+        })
+        .collect()
+}
+
+/// `x` minus its mean over samples with about the same force (32 force bins).
+pub fn centre_by_level(f: &[f64], mut x: Vec<f64>) -> Vec<f64> {
+    const BINS: usize = 32;
+    let fmax = f.iter().cloned().fold(0.0, f64::max).max(1e-12);
+    let bin = |v: f64| (((v.max(0.0) / fmax) * BINS as f64) as usize).min(BINS - 1);
+    let mut sum = [0.0f64; BINS];
+    let mut cnt = [0usize; BINS];
+    for (fi, xi) in f.iter().zip(&x) {
+        sum[bin(*fi)] += xi;
+        cnt[bin(*fi)] += 1;
+    }
+    for (fi, xi) in f.iter().zip(x.iter_mut()) {
+        let b = bin(*fi);
+        *xi -= sum[b] / cnt[b].max(1) as f64;
+    }
+    x
 }
 
 fn lowpass(x: &[f64], dt: &[f64], tau: f64) -> Vec<f64> {
@@ -422,38 +456,50 @@ pub fn evaluate_with(
     let mut dt: Vec<f64> = Vec::with_capacity(len);
     dt.push(ds.dt());
     dt.extend(ds.t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
-    // Loads: one series for all nodes, or one per node with scan skew.
+    // Loads: one series for all nodes; scan skew shifts node k by k * dt_node to first order,
+    // p_k(t) = p(t) + k dt_node dp/dt.
     let mut p_common = Vec::new();
-    let mut p_node: Vec<Vec<f64>> = Vec::new();
-    match cfg.scan_skew {
-        Some(skew) if skew != 0.0 => {
-            for k in 0..n {
-                let mut v = Vec::new();
-                let shift = skew * k as f64;
-                let fk = shifted(&ds.t, &ds.force, shift);
-                load_series(fk.into_iter(), &dt, cfg, &mut v);
-                p_node.push(v);
-            }
-        }
-        _ => load_series(ds.force.iter().copied(), &dt, cfg, &mut p_common),
-    }
+    load_series(ds.force.iter().copied(), &dt, cfg, &mut p_common);
+    let skew = cfg.scan_skew.unwrap_or(0.0);
+    let dp: Vec<f64> = if skew != 0.0 {
+        (0..len)
+            .map(|i| {
+                let (a, b) = (i.saturating_sub(1), (i + 1).min(len - 1));
+                let span = ds.t[b] - ds.t[a];
+                if span > 0.0 {
+                    (p_common[b] - p_common[a]) / span
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
     let p_at = |k: usize, i: usize| -> f64 {
-        if p_node.is_empty() {
+        if dp.is_empty() {
             p_common[i]
         } else {
-            p_node[k][i]
+            (p_common[i] + skew * k as f64 * dp[i]).max(0.0)
         }
     };
     // Curvature sensitivity per sample.
+    let form = |x: f64| -> f64 {
+        if cfg.curv_linear {
+            (1.0 - x).max(0.05)
+        } else {
+            1.0 / (1.0 + x).max(0.05)
+        }
+    };
     let sens: Vec<f64> = match (cfg.curv_sens, &ds.kappa) {
         (Some(ks), Some(kappa)) => kappa
             .iter()
-            .map(|&k| 1.0 / (1.0 + k.max(0.0) / ks.max(1e-6)))
+            .map(|&k| form(k.max(0.0) / ks.max(1e-6)))
             .collect(),
         (Some(beta), None) => ds
             .trial
             .iter()
-            .map(|&j| 1.0 / (1.0 + beta * ctx.trial_shift[j]).max(0.05))
+            .map(|&j| form(beta * ctx.trial_shift[j]))
             .collect(),
         _ => vec![1.0; len],
     };
@@ -506,15 +552,38 @@ pub fn evaluate_with(
             }
         }
     }
-    let curv_k = cfg.curv_base && ds.kappa.is_some();
-    let n_int = if cfg.curv_base && ds.kappa.is_none() {
-        ds.n_trials
+    // Curvature baseline: a per-node slope on the curvature, or, without a curvature column,
+    // on the trial's common no-load shift (the curvature's footprint: rank one in trial x node).
+    let curv_k = cfg.curv_base;
+    let n_int = 1;
+    let curv_x: Vec<f64> = if curv_k {
+        match &ds.kappa {
+            Some(k) => k.clone(),
+            None => ds.trial.iter().map(|&j| ctx.trial_shift[j]).collect(),
+        }
     } else {
-        1
+        Vec::new()
     };
-    let pdim = n_int + usize::from(curv_k) + 1;
+    // Hysteresis: two play operators (half-widths r and 4 r), each with per-node amplitudes,
+    // so the loop's shape (sharp or rounded corners) is fitted, not assumed.
+    // Each gap is centred on its mean at the same force level, so the term only carries the
+    // difference between branches (a loop), never a level-dependent offset the static law
+    // should carry.
+    let (hyst, hyst2): (Vec<f64>, Vec<f64>) = match cfg.hysteresis {
+        Some((_, r)) => (
+            centre_by_level(&ds.force, play_gap(&ds.force, r)),
+            centre_by_level(&ds.force, play_gap(&ds.force, 4.0 * r)),
+        ),
+        None => (Vec::new(), Vec::new()),
+    };
+    let lay = Layout {
+        n_int,
+        curv_k,
+        hyst: !hyst.is_empty(),
+    };
+    let pdim = lay.dim();
     let mut theta = vec![vec![0.0; pdim]; n];
-    let iterations = if latent.is_some() { 4 } else { 1 };
+    let iterations = if latent.is_some() { 3 } else { 1 };
     for it in 0..iterations {
         if let Some((knots, values)) = &latent {
             for (i, mi) in m.iter_mut().enumerate() {
@@ -542,10 +611,13 @@ pub fn evaluate_with(
                 let z = g2[idx] / mi;
                 let w = w * mi * mi;
                 xrow.iter_mut().for_each(|v| *v = 0.0);
-                let it0 = if n_int > 1 { ds.trial[i] } else { 0 };
-                xrow[it0] = 1.0;
+                xrow[0] = 1.0;
                 if curv_k {
-                    xrow[n_int] = ds.kappa.as_ref().map_or(0.0, |kk| kk[i]);
+                    xrow[n_int] = curv_x[i];
+                }
+                if lay.hyst {
+                    xrow[pdim - 3] = sens[i] * hyst[i];
+                    xrow[pdim - 2] = sens[i] * hyst2[i];
                 }
                 xrow[pdim - 1] = sens[i] * p_at(k, i);
                 for u in 0..pdim {
@@ -584,7 +656,13 @@ pub fn evaluate_with(
                     if wt == 0.0 {
                         continue;
                     }
-                    let q = zhat(&theta[k], ds, i, n_int, curv_k, sens[i] * p_at(k, i));
+                    let hv = if lay.hyst {
+                        [sens[i] * hyst[i], sens[i] * hyst2[i]]
+                    } else {
+                        [0.0; 2]
+                    };
+                    let cx = if curv_k { curv_x[i] } else { 0.0 };
+                    let q = zhat(&theta[k], &lay, cx, hv, sens[i] * p_at(k, i));
                     let phi = [(j, (1.0 - w) * q), (j + 1, w * q)];
                     for &(u, xu) in &phi {
                         if u >= kk {
@@ -629,7 +707,13 @@ pub fn evaluate_with(
             let mut srow = 0.0;
             for c in 0..cols {
                 let k = row * cols + c;
-                let z = zhat(&theta[k], ds, i, n_int, curv_k, sens[i] * p_at(k, i));
+                let hv = if lay.hyst {
+                    [sens[i] * hyst[i], sens[i] * hyst2[i]]
+                } else {
+                    [0.0; 2]
+                };
+                let cx = if curv_k { curv_x[i] } else { 0.0 };
+                let z = zhat(&theta[k], &lay, cx, hv, sens[i] * p_at(k, i));
                 let g = (m[i] * z).max(1e-12);
                 gs[c] = g / (1.0 + r * g);
                 srow += gs[c];
@@ -655,10 +739,36 @@ pub fn evaluate_with(
     }
 }
 
-fn zhat(th: &[f64], ds: &Dataset, i: usize, n_int: usize, curv_k: bool, sp: f64) -> f64 {
-    let mut z = if n_int > 1 { th[ds.trial[i]] } else { th[0] };
-    if curv_k {
-        z += th[n_int] * ds.kappa.as_ref().map_or(0.0, |k| k[i]);
+/// Where each per-node linear parameter sits in `theta`: the intercept, the curvature-baseline
+/// slope (on the curvature, or on the trial's no-load shift), the two hysteresis amplitudes, and
+/// last the force gain.
+#[derive(Debug, Clone, Copy)]
+pub struct Layout {
+    pub n_int: usize,
+    pub curv_k: bool,
+    pub hyst: bool,
+}
+
+impl Layout {
+    pub fn of(ds: &Dataset, cfg: &Config) -> Layout {
+        Layout {
+            n_int: 1,
+            curv_k: cfg.curv_base,
+            hyst: cfg.hysteresis.is_some(),
+        }
+    }
+    pub fn dim(&self) -> usize {
+        self.n_int + usize::from(self.curv_k) + 2 * usize::from(self.hyst) + 1
+    }
+}
+
+fn zhat(th: &[f64], lay: &Layout, cx: f64, hv: [f64; 2], sp: f64) -> f64 {
+    let mut z = th[0];
+    if lay.curv_k {
+        z += th[lay.n_int] * cx;
+    }
+    if lay.hyst {
+        z += th[th.len() - 3] * hv[0] + th[th.len() - 2] * hv[1];
     }
     z + th[th.len() - 1] * sp
 }

@@ -1,6 +1,7 @@
 //! The reference world: a richer sensor than the tool's own model, used to prove the
 //! diagnosis on recordings where an effect is concealed. Its functional forms differ on
-//! purpose: two-time-constant creep (the tool fits one), Bouc-Wen hysteresis (the tool fits a
+//! purpose: log-time creep (a six-decade spectrum of relaxations; the tool fits two Prony
+//! terms), Bouc-Wen hysteresis (the tool fits a
 //! play operator), an exponential temperature law behind a two-stage thermal lag (the tool:
 //! linear, one lag), a linear curvature sensitivity loss (the tool: 1/(1 + kappa/kappa_s)), the
 //! exact crosstalk network with op-amp offsets (the tool: first-order row droop), scan skew
@@ -174,17 +175,16 @@ pub fn generate(case: Case, seed: u64, duration_s: f64) -> Recording {
     let mut rng = Rng::new(seed, 77);
     let fast = case == Case::ScanSkew;
     let sched = schedule(&mut rng, duration_s, fast);
-    // The contact: a fixed load map, strongest around (1.2, 1.6), with rows carrying
-    // different totals.
-    let mut w = [0.0f64; N];
-    for r in 0..ROWS {
-        for c in 0..COLS {
-            let d2 = (r as f64 - 1.2).powi(2) / 1.4 + (c as f64 - 1.6).powi(2) / 2.5;
-            w[r * COLS + c] = (-d2).exp();
-        }
-    }
-    let ws: f64 = w.iter().sum();
-    w.iter_mut().for_each(|v| *v /= ws);
+    // The contact: a fixed load map. Row 1 carries most of the load across its columns, row 3
+    // one node, the rest a little: rows carry very different totals (crosstalk shows).
+    let w_raw = [
+        0.02, 0.04, 0.04, 0.02, //
+        0.15, 0.22, 0.20, 0.12, //
+        0.03, 0.06, 0.05, 0.02, //
+        0.01, 0.02, 0.14, 0.01,
+    ];
+    let ws: f64 = w_raw.iter().sum();
+    let w: Vec<f64> = w_raw.iter().map(|v| v / ws).collect();
     let g0: Vec<f64> = (0..N).map(|_| 25e-6 * (0.1 * rng.normal()).exp()).collect();
     let gain: Vec<f64> = (0..N)
         .map(|_| 150e-6 * (0.08 * rng.normal()).exp())
@@ -221,7 +221,7 @@ pub fn generate(case: Case, seed: u64, duration_s: f64) -> Recording {
     );
     let hyst = matches!(case, Case::Hysteresis | Case::TwoEffects);
     let mut noise_ar = [0.0f64; N];
-    let mut creep_s = [[0.0f64; 2]; N];
+    let mut creep_s = [[0.0f64; 6]; N];
     let mut bw_z = [0.0f64; N];
     let mut f_prev = [0.0f64; N];
     let (mut t1, mut t2) = (temp_of(0.0), temp_of(0.0));
@@ -282,11 +282,17 @@ pub fn generate(case: Case, seed: u64, duration_s: f64) -> Recording {
             }
             f_prev[k] = f_total * w[k];
             if matches!(case, Case::Creep) {
-                // Two-time-constant creep.
-                for (s, tau) in creep_s[k].iter_mut().zip([1.5, 40.0]) {
+                // Log-time creep: equal relaxations per decade of time, 0.3 s to 300 s, about
+                // 1.5 % of the load per decade.
+                let mut extra = 0.0;
+                for (s, tau) in creep_s[k]
+                    .iter_mut()
+                    .zip([0.3, 1.0, 3.0, 10.0, 30.0, 100.0])
+                {
                     *s += (f - *s) * (1.0 - (-dt / tau).exp());
+                    extra += 0.015 * *s;
                 }
-                f += 0.05 * creep_s[k][0] + 0.07 * creep_s[k][1];
+                f += extra;
             }
             let base = match case {
                 Case::CurvatureBaseline | Case::CurvatureUnlabelled => {
@@ -313,7 +319,7 @@ pub fn generate(case: Case, seed: u64, duration_s: f64) -> Recording {
         }
         let mut vout = [0.0f64; N];
         if case == Case::Crosstalk {
-            let rs = 70.0;
+            let rs = 100.0;
             let mut v_row = [0.0f64; ROWS];
             for sel in 0..ROWS {
                 for (ri, vr) in v_row.iter_mut().enumerate() {

@@ -71,6 +71,12 @@ pub fn extended_model(
     c.mount_curvature_scatter = 0.0;
     c.mount_baseline_log_sd = 0.0;
     match (cfg.curv_sens, &ds.kappa) {
+        (Some(ks), Some(kappa)) if cfg.curv_linear => {
+            // The simulator has the hyperbolic form: match it at the mean curvature.
+            let kbar = kappa.iter().sum::<f64>() / kappa.len().max(1) as f64;
+            c.sensitivity_kappa_s_m1 = (ks - kbar).max(1.0);
+            notes.push(format!("curvature_sensitivity fitted in the linear form 1 - kappa/{ks:.1}; SIM.toml has the simulator's 1/(1 + kappa/kappa_s), matched at the mean curvature {kbar:.1} 1/m"));
+        }
         (Some(ks), Some(_)) => c.sensitivity_kappa_s_m1 = ks.max(1e-3),
         (Some(_), None) => {
             c.sensitivity_kappa_s_m1 = 1e9;
@@ -98,14 +104,17 @@ pub fn extended_model(
     c.baseline_g2_m2 = 0.0;
     c.pattern_quad_m = 0.0;
     c.pattern_lin_m = 0.0;
-    m.creep = cfg.creep.map(|(a, tau)| Creep {
-        amplitudes: vec![a.clamp(-0.99, 0.99)],
-        tau_s: vec![tau],
+    m.creep = cfg.creep.map(|terms| Creep {
+        amplitudes: terms.iter().map(|t| t.0.clamp(-0.99, 0.99)).collect(),
+        tau_s: terms.iter().map(|t| t.1).collect(),
     });
-    m.hysteresis = cfg.hysteresis.map(|(w, r)| Hysteresis {
-        weight: w,
+    m.hysteresis = cfg.hysteresis.map(|(_, r)| Hysteresis {
+        weight: crate::diagnose::hysteresis_weight(ds, cfg, &d.final_theta),
         thresholds_n: vec![r],
     });
+    if cfg.hysteresis.is_some() {
+        notes.push("hysteresis: the tool fits one play operator on the total force with a per-node amplitude; SIM.toml gets the median share of the load (weight) and the play half-width".into());
+    }
     m.thermal_drift = match &cfg.thermal {
         Some(Thermal::Recorded { alpha_per_k, tau_s }) => {
             let t0 = ds
@@ -378,7 +387,7 @@ pub fn write_all(
     for e in &d.effects {
         let (xlabel, x): (String, Box<dyn Fn(usize) -> Option<f64>>) = match e.name.as_str() {
             "creep" => {
-                let tau = e.params.get("tau_s").copied().unwrap_or(3.0);
+                let tau = e.params.get("tau_fast_s").copied().unwrap_or(3.0);
                 let mut s = ds.force[0];
                 let lp: Vec<f64> = ds
                     .force
@@ -612,12 +621,12 @@ fn markdown(
             );
         }
     }
-    let _ = writeln!(s, "\n### Every candidate tested\n\n| round | effect | held-out RMSE before -> after | SSE gain | block t | blocks better | information gain | accepted |\n|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "\n### Every candidate tested\n\n| round | effect | held-out RMSE before -> after | SSE gain | block t | blocks better | information gain | accepted | time (s) |\n|---|---|---|---|---|---|---|---|---|");
     for t in &d.trials {
         let v = &t.verdict;
         let _ = writeln!(
             s,
-            "| {} | {} | {:.4} -> {:.4} | {:.1} % | {:.1} | {:.0} % | {:.0} | {} |",
+            "| {} | {} | {:.4} -> {:.4} | {:.1} % | {:.1} | {:.0} % | {:.0} | {} | {:.1} |",
             t.round,
             t.effect,
             v.rmse_before,
@@ -626,13 +635,14 @@ fn markdown(
             v.block_t,
             100.0 * v.blocks_improved,
             v.ic_gain,
-            if v.accepted { "yes" } else { "no" }
+            if v.accepted { "yes" } else { "no" },
+            t.seconds,
         );
     }
     for (e, why) in &d.skipped {
         let _ = writeln!(s, "\n- {e} not testable here: {why}");
     }
-    let _ = writeln!(s, "\nAn effect is accepted when its held-out SSE gain is at least {:.0} %, its block t statistic at least {:.0}, and n_eff ln(SSE0/SSE1) exceeds k ln(n_eff) for its k extra parameters (n_eff = samples / integrated autocorrelation time).\n", 100.0 * crate::search::MIN_REL_GAIN, crate::search::MIN_BLOCK_T);
+    let _ = writeln!(s, "\nAn effect is accepted when its held-out SSE gain is at least {:.0} %, its block t statistic at least {:.0}, and n_eff ln(SSE0/SSE1) exceeds k ln(n_eff) for its k extra parameters (n_eff = time samples / integrated autocorrelation time of the richer model's held-out residual).\n", 100.0 * crate::search::MIN_REL_GAIN, crate::search::MIN_BLOCK_T);
     let _ = writeln!(s, "## Figures\n");
     for fig in figures.iter().filter(|f| f.ends_with(".png")) {
         let _ = writeln!(s, "![{fig}]({fig})\n");

@@ -11,19 +11,22 @@ use crate::model::{
 /// Acceptance thresholds (documented in docs/simcheck.md).
 pub const MIN_BLOCK_T: f64 = 3.0;
 pub const MIN_REL_GAIN: f64 = 0.01;
+/// Block t statistic an effect must keep to stay in the model in the backward pass.
+pub const MIN_KEEP_T: f64 = 2.0;
 
 /// A global parameter the search moves, in an unconstrained coordinate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Param {
     LnExponent,
     LnFloor,
-    CreepC,
-    CreepLnTau,
+    CreepC(usize),
+    CreepLnTau(usize),
     HystW,
     HystLnR,
     ThermAlpha,
     ThermLnTau,
-    CurvSens,
+    CurvLnK,
+    CurvBeta,
     LnRs,
     LnSkew,
 }
@@ -33,8 +36,8 @@ impl Param {
         match self {
             Param::LnExponent => c.exponent.ln(),
             Param::LnFloor => c.r_floor_ohm.max(1e-9).ln(),
-            Param::CreepC => c.creep.map_or(0.0, |v| v.0),
-            Param::CreepLnTau => c.creep.map_or(0.0, |v| v.1.ln()),
+            Param::CreepC(j) => c.creep.map_or(0.0, |v| v[j].0),
+            Param::CreepLnTau(j) => c.creep.map_or(0.0, |v| v[j].1.ln()),
             Param::HystW => c.hysteresis.map_or(0.0, |v| v.0),
             Param::HystLnR => c.hysteresis.map_or(0.0, |v| v.1.max(1e-9).ln()),
             Param::ThermAlpha => match &c.thermal {
@@ -45,7 +48,8 @@ impl Param {
                 Some(Thermal::Recorded { tau_s, .. }) => tau_s.ln(),
                 _ => 0.0,
             },
-            Param::CurvSens => c.curv_sens.unwrap_or(0.0),
+            Param::CurvLnK => c.curv_sens.unwrap_or(1.0).max(1e-6).ln(),
+            Param::CurvBeta => c.curv_sens.unwrap_or(0.0),
             Param::LnRs => c.crosstalk.map_or(0.0, |v| v.max(1e-9).ln()),
             Param::LnSkew => c.scan_skew.map_or(0.0, |v| v.max(1e-9).ln()),
         }
@@ -55,14 +59,14 @@ impl Param {
         match self {
             Param::LnExponent => c.exponent = v.clamp(0.2f64.ln(), 3f64.ln()).exp(),
             Param::LnFloor => c.r_floor_ohm = v.clamp(-30.0, 30.0).exp(),
-            Param::CreepC => {
+            Param::CreepC(j) => {
                 if let Some(cr) = &mut c.creep {
-                    cr.0 = v.clamp(-0.5, 2.0);
+                    cr[j].0 = v.clamp(-0.5, 2.0);
                 }
             }
-            Param::CreepLnTau => {
+            Param::CreepLnTau(j) => {
                 if let Some(cr) = &mut c.creep {
-                    cr.1 = v.clamp(0.05f64.ln(), 5000f64.ln()).exp();
+                    cr[j].1 = v.clamp(0.05f64.ln(), 5000f64.ln()).exp();
                 }
             }
             Param::HystW => {
@@ -85,7 +89,8 @@ impl Param {
                     *tau_s = v.clamp(0.0, 12.0).exp();
                 }
             }
-            Param::CurvSens => c.curv_sens = Some(v),
+            Param::CurvLnK => c.curv_sens = Some(v.clamp(0.0, 12.0).exp()),
+            Param::CurvBeta => c.curv_sens = Some(v.clamp(-50.0, 50.0)),
             Param::LnRs => c.crosstalk = Some(v.clamp(-20.0, 10.0).exp()),
             Param::LnSkew => c.scan_skew = Some(v.clamp(-20.0, -2.0).exp()),
         }
@@ -93,10 +98,10 @@ impl Param {
 
     fn step(self) -> f64 {
         match self {
-            Param::CreepC => 0.03,
+            Param::CreepC(_) => 0.03,
             Param::HystW => 0.05,
             Param::ThermAlpha => 0.1,
-            Param::CurvSens => 0.5,
+            Param::CurvBeta => 0.5,
             Param::LnExponent => 0.05,
             _ => 0.5,
         }
@@ -336,27 +341,30 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
     let dur = ds.duration().max(1.0);
     match e {
         EffectKind::Creep => {
-            for tau in [0.5, 2.0, 8.0, 30.0, 120.0] {
-                if tau > dur {
+            for (t1, t2) in [(0.5f64, 10.0f64), (1.5, 40.0), (4.0, 150.0)] {
+                if t1 > dur {
                     continue;
                 }
-                for c in [0.03, 0.1] {
+                for c in [0.02, 0.06] {
                     let mut s = cur.clone();
-                    s.creep = Some((c, tau));
+                    s.creep = Some([(c, t1), (c, t2.min(dur))]);
                     starts.push(s);
                 }
             }
-            params.extend([Param::CreepC, Param::CreepLnTau]);
+            params.extend([
+                Param::CreepC(0),
+                Param::CreepLnTau(0),
+                Param::CreepC(1),
+                Param::CreepLnTau(1),
+            ]);
         }
         EffectKind::Hysteresis => {
-            for r in [0.02, 0.06, 0.2] {
-                for w in [0.05, 0.2] {
-                    let mut s = cur.clone();
-                    s.hysteresis = Some((w, r * fmax));
-                    starts.push(s);
-                }
+            for r in [0.01, 0.03, 0.1, 0.3] {
+                let mut s = cur.clone();
+                s.hysteresis = Some((0.0, r * fmax));
+                starts.push(s);
             }
-            params.extend([Param::HystW, Param::HystLnR]);
+            params.push(Param::HystLnR);
         }
         EffectKind::ThermalDrift => {
             if ds.temp.is_some() {
@@ -382,17 +390,26 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
             }
         }
         EffectKind::CurvatureSensitivity => {
+            // Both forms PHYSICS.md names: 1/(1 + kappa/kappa_s) and 1 - kappa/kappa_1; the
+            // better start wins, then its parameter is refined.
             let grid: Vec<f64> = if ds.kappa.is_some() {
-                vec![30.0, 100.0, 300.0, 1000.0]
+                vec![100.0, 300.0, 1000.0]
             } else {
                 vec![-3.0, -1.0, 1.0, 3.0]
             };
-            for v in grid {
-                let mut s = cur.clone();
-                s.curv_sens = Some(v);
-                starts.push(s);
+            for linear in [false, true] {
+                for &v in &grid {
+                    let mut s = cur.clone();
+                    s.curv_sens = Some(v);
+                    s.curv_linear = linear;
+                    starts.push(s);
+                }
             }
-            params.push(Param::CurvSens);
+            params.push(if ds.kappa.is_some() {
+                Param::CurvLnK
+            } else {
+                Param::CurvBeta
+            });
         }
         EffectKind::CurvatureBaseline => {
             let mut s = cur.clone();
@@ -431,19 +448,28 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
 }
 
 /// All parameters of a configuration (for the joint refit after acceptance).
-pub fn all_params(cfg: &Config) -> Vec<Param> {
+pub fn all_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
     let mut p = base_params(cfg);
     if cfg.creep.is_some() {
-        p.extend([Param::CreepC, Param::CreepLnTau]);
+        p.extend([
+            Param::CreepC(0),
+            Param::CreepLnTau(0),
+            Param::CreepC(1),
+            Param::CreepLnTau(1),
+        ]);
     }
     if cfg.hysteresis.is_some() {
-        p.extend([Param::HystW, Param::HystLnR]);
+        p.push(Param::HystLnR);
     }
     if let Some(Thermal::Recorded { .. }) = cfg.thermal {
         p.extend([Param::ThermAlpha, Param::ThermLnTau]);
     }
     if cfg.curv_sens.is_some() {
-        p.push(Param::CurvSens);
+        p.push(if has_kappa {
+            Param::CurvLnK
+        } else {
+            Param::CurvBeta
+        });
     }
     if cfg.crosstalk.is_some() {
         p.push(Param::LnRs);
@@ -458,7 +484,8 @@ pub fn all_params(cfg: &Config) -> Vec<Param> {
 pub fn n_params(ctx: &Context, e: EffectKind) -> usize {
     let ds = ctx.ds;
     match e {
-        EffectKind::Creep | EffectKind::Hysteresis => 2,
+        EffectKind::Creep => 4,
+        EffectKind::Hysteresis => 1 + 2 * ds.n,
         EffectKind::ThermalDrift => {
             if ds.temp.is_some() {
                 2
@@ -466,13 +493,7 @@ pub fn n_params(ctx: &Context, e: EffectKind) -> usize {
                 latent_knots(ds).len()
             }
         }
-        EffectKind::CurvatureBaseline => {
-            if ds.kappa.is_some() {
-                ds.n
-            } else {
-                ds.n * (ds.n_trials - 1)
-            }
-        }
+        EffectKind::CurvatureBaseline => ds.n,
         EffectKind::CurvatureSensitivity
         | EffectKind::Saturation
         | EffectKind::Crosstalk
@@ -489,6 +510,8 @@ pub struct Cv {
     pub count: usize,
     /// SSE per block.
     pub block_sse: Vec<f64>,
+    /// SSE per block over no-load samples only (force below 2 % of the peak).
+    pub rest_block_sse: Vec<f64>,
     /// The configuration fitted on each fold's training half.
     pub fits: [Config; 2],
 }
@@ -535,12 +558,18 @@ pub fn cross_validate(ctx: &Context, starts: &[Config], params: &[Param], max_ev
         fits.push(cfg);
     }
     let mut block_sse = vec![0.0; ctx.n_blocks];
+    let mut rest_block_sse = vec![0.0; ctx.n_blocks];
+    let rest_limit = 0.02 * ds.max_force();
     let mut count = 0;
     for i in 0..ds.len() {
         for k in 0..n {
             let idx = i * n + k;
             if ctx.usable[idx] {
-                block_sse[ctx.block[i]] += resid[idx] * resid[idx];
+                let r2 = resid[idx] * resid[idx];
+                block_sse[ctx.block[i]] += r2;
+                if ds.force[i] <= rest_limit {
+                    rest_block_sse[ctx.block[i]] += r2;
+                }
                 count += 1;
             }
         }
@@ -555,6 +584,7 @@ pub fn cross_validate(ctx: &Context, starts: &[Config], params: &[Param], max_ev
         sse,
         count,
         block_sse,
+        rest_block_sse,
         fits: [a, b],
     }
 }
@@ -575,9 +605,34 @@ pub struct Verdict {
     /// n_eff ln(SSE0/SSE1) - k ln(n_eff): positive = the parameters pay for themselves.
     pub ic_gain: f64,
     pub accepted: bool,
+    /// Block t statistic of the gain on no-load samples alone (thermal drift must show there:
+    /// temperature moves unloaded nodes, creep does not).
+    pub rest_block_t: f64,
+    /// Weaker bar for keeping an effect already in the model (backward pass).
+    pub keep: bool,
 }
 
-pub fn compare(before: &Cv, after: &Cv, extra_params: usize, tau_int: f64) -> Verdict {
+/// Block t statistic of the SSE reduction from `a` to `b` per block.
+pub fn block_t_of(a: &[f64], b: &[f64]) -> f64 {
+    let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
+    let nb = d.len().max(1) as f64;
+    let mean = d.iter().sum::<f64>() / nb;
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (nb - 1.0).max(1.0);
+    let se = (var / nb).sqrt();
+    if se > 0.0 {
+        mean / se
+    } else {
+        0.0
+    }
+}
+
+pub fn compare(
+    before: &Cv,
+    after: &Cv,
+    extra_params: usize,
+    tau_int: f64,
+    time_samples: usize,
+) -> Verdict {
     let d: Vec<f64> = before
         .block_sse
         .iter()
@@ -590,7 +645,8 @@ pub fn compare(before: &Cv, after: &Cv, extra_params: usize, tau_int: f64) -> Ve
     let se = (var / nb).sqrt();
     let block_t = if se > 0.0 { mean / se } else { 0.0 };
     let improved = d.iter().filter(|x| **x > 0.0).count() as f64 / nb;
-    let n_eff = (before.count as f64 / tau_int.max(1.0)).max(2.0);
+    // Nodes share the stimulus and its errors: count time samples, not node-samples.
+    let n_eff = (time_samples as f64 / tau_int.max(1.0)).max(2.0);
     let ratio = (before.sse / after.sse.max(1e-300)).max(1e-300);
     let ic_gain = n_eff * ratio.ln() - extra_params as f64 * n_eff.ln();
     let rel_gain = 1.0 - after.sse / before.sse.max(1e-300);
@@ -603,6 +659,8 @@ pub fn compare(before: &Cv, after: &Cv, extra_params: usize, tau_int: f64) -> Ve
         n_eff,
         ic_gain,
         accepted: rel_gain >= MIN_REL_GAIN && block_t >= MIN_BLOCK_T && ic_gain > 0.0,
+        rest_block_t: block_t_of(&before.rest_block_sse, &after.rest_block_sse),
+        keep: rel_gain >= 0.5 * MIN_REL_GAIN && block_t >= MIN_KEEP_T && ic_gain > 0.0,
     }
 }
 
