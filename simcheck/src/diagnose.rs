@@ -296,7 +296,21 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
     let t0 = Instant::now();
     let ctx = Context::new(ds);
     let ev_n = opts.max_evals;
-    let cfg0 = Config::base(start.material.exponent, start.material.r_floor_ohm);
+    // The start model's floor must leave room for the highest conductance recorded (a floor
+    // above the lowest recorded resistance would make every loaded sample unreachable).
+    let g_max = ctx
+        .g_obs
+        .iter()
+        .zip(&ctx.usable)
+        .filter(|(_, u)| **u)
+        .map(|(g, _)| *g)
+        .fold(0.0, f64::max);
+    let floor = if start.material.r_floor_ohm > 0.0 && g_max > 0.0 {
+        start.material.r_floor_ohm.min(0.3 / g_max)
+    } else {
+        start.material.r_floor_ohm
+    };
+    let cfg0 = Config::base(start.material.exponent, floor);
     let bp = base_params(&cfg0);
     let base_cv = cross_validate(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
     let base = fit_all(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);

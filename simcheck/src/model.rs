@@ -8,7 +8,7 @@
 //! sensitivity `s` and the curvature baseline term; then the resistance floor `G / (1 + r G)`,
 //! the row crosstalk `G (1 - Rs sum_row G)`, and the readout.
 
-use crate::data::Dataset;
+use crate::data::{Dataset, ReadoutMap};
 
 /// The effects the tool can name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -393,7 +393,7 @@ pub fn latent_knots(ds: &Dataset) -> Vec<f64> {
 /// small ridge; returns zeros when it fails.
 pub fn solve_spd(a: &[f64], b: &[f64], p: usize) -> Vec<f64> {
     let tr: f64 = (0..p).map(|i| a[i * p + i]).sum::<f64>() / p.max(1) as f64;
-    let lam = 1e-10 * tr.max(1e-300);
+    let lam = 1e-9 * tr.max(1e-300);
     let mut l = vec![0.0; p * p];
     for i in 0..p {
         for j in 0..=i {
@@ -402,9 +402,10 @@ pub fn solve_spd(a: &[f64], b: &[f64], p: usize) -> Vec<f64> {
                 s -= l[i * p + k] * l[j * p + k];
             }
             if i == j {
-                if s <= 0.0 || !s.is_finite() {
-                    // Not identified (e.g. a trial with no training sample): ridge it harder.
-                    s = lam.max(1e-300) * 1e6 + 1e-300;
+                if !(s > 1e-9 * (a[i * p + i] + lam)) {
+                    // Not identified (collinear with the others, e.g. a constant force, or no
+                    // training sample): shrink this coefficient to zero instead.
+                    s = (a[i * p + i] + lam).max(1e-300) * 1e6;
                 }
                 l[i * p + i] = s.sqrt();
             } else {
@@ -596,46 +597,70 @@ pub fn evaluate_with(
                 *mi = v.max(0.05);
             }
         }
-        // Per-node weighted least squares.
+        // Per-node weighted least squares; for readouts that are not linear in conductance
+        // (resistance, divider) a few Gauss-Newton passes linearise the residual domain around
+        // the current prediction instead of the observation (whose 1/G^2 weights would favour
+        // the highest-resistance samples).
+        let gn_passes = if matches!(ds.map, ReadoutMap::Amplifier { .. }) {
+            0
+        } else {
+            2
+        };
         let mut xrow = vec![0.0; pdim];
         for (k, th) in theta.iter_mut().enumerate() {
-            let mut a = vec![0.0; pdim * pdim];
-            let mut b = vec![0.0; pdim];
-            for i in (0..len).step_by(stride) {
-                let idx = i * n + k;
-                let w = wgt[idx];
-                if w == 0.0 || !train(i) {
-                    continue;
-                }
-                let mi = m[i];
-                let z = g2[idx] / mi;
-                let w = w * mi * mi;
-                xrow.iter_mut().for_each(|v| *v = 0.0);
-                xrow[0] = 1.0;
-                if curv_k {
-                    xrow[n_int] = curv_x[i];
-                }
-                if lay.hyst {
-                    xrow[pdim - 3] = sens[i] * hyst[i];
-                    xrow[pdim - 2] = sens[i] * hyst2[i];
-                }
-                xrow[pdim - 1] = sens[i] * p_at(k, i);
-                for u in 0..pdim {
-                    if xrow[u] == 0.0 {
+            for pass in 0..=gn_passes {
+                let mut a = vec![0.0; pdim * pdim];
+                let mut b = vec![0.0; pdim];
+                for i in (0..len).step_by(stride) {
+                    let idx = i * n + k;
+                    let w = wgt[idx];
+                    if w == 0.0 || !train(i) {
                         continue;
                     }
-                    b[u] += w * xrow[u] * z;
-                    for v in 0..=u {
-                        a[u * pdim + v] += w * xrow[u] * xrow[v];
+                    let mi = m[i];
+                    xrow.iter_mut().for_each(|v| *v = 0.0);
+                    xrow[0] = 1.0;
+                    if curv_k {
+                        xrow[n_int] = curv_x[i];
+                    }
+                    if lay.hyst {
+                        xrow[pdim - 3] = sens[i] * hyst[i];
+                        xrow[pdim - 2] = sens[i] * hyst2[i];
+                    }
+                    xrow[pdim - 1] = sens[i] * p_at(k, i);
+                    let (z, w) = if pass == 0 {
+                        (g2[idx] / mi, w * mi * mi)
+                    } else {
+                        let zh: f64 = xrow.iter().zip(th.iter()).map(|(x, t)| x * t).sum();
+                        let zh = zh.max(1e-15);
+                        let dom_of = |z: f64| {
+                            let g = (mi * z).max(1e-15);
+                            ds.map.dom(ds.map.from_g(g / (1.0 + r * g)))
+                        };
+                        let f0 = dom_of(zh);
+                        let d = (dom_of(zh * (1.0 + 1e-4)) - f0) / (zh * 1e-4);
+                        if !d.is_finite() || d == 0.0 {
+                            continue;
+                        }
+                        (zh + (ctx.dom_obs[idx] - f0) / d, d * d)
+                    };
+                    for u in 0..pdim {
+                        if xrow[u] == 0.0 {
+                            continue;
+                        }
+                        b[u] += w * xrow[u] * z;
+                        for v in 0..=u {
+                            a[u * pdim + v] += w * xrow[u] * xrow[v];
+                        }
                     }
                 }
-            }
-            for u in 0..pdim {
-                for v in u + 1..pdim {
-                    a[u * pdim + v] = a[v * pdim + u];
+                for u in 0..pdim {
+                    for v in u + 1..pdim {
+                        a[u * pdim + v] = a[v * pdim + u];
+                    }
                 }
+                *th = solve_spd(&a, &b, pdim);
             }
-            *th = solve_spd(&a, &b, pdim);
         }
         // Latent thermal: refit the common-mode factor on the knots.
         if let Some((knots, values)) = &mut latent {

@@ -642,7 +642,7 @@ fn markdown(
     for (e, why) in &d.skipped {
         let _ = writeln!(s, "\n- {e} not testable here: {why}");
     }
-    let _ = writeln!(s, "\nAn effect is accepted when its held-out SSE gain is at least {:.0} %, its block t statistic at least {:.0}, and n_eff ln(SSE0/SSE1) exceeds k ln(n_eff) for its k extra parameters (n_eff = time samples / integrated autocorrelation time of the richer model's held-out residual).\n", 100.0 * crate::search::MIN_REL_GAIN, crate::search::MIN_BLOCK_T);
+    let _ = writeln!(s, "\nAn effect is accepted when its held-out SSE gain is at least {:.0} %, its block t statistic (or the sign test over blocks, as a z score) at least {:.0}, and n_eff ln(SSE0/SSE1) exceeds k ln(n_eff) for its k extra parameters (n_eff = time samples / integrated autocorrelation time of the richer model's held-out residual).\n", 100.0 * crate::search::MIN_REL_GAIN, crate::search::MIN_BLOCK_T);
     let _ = writeln!(s, "## Figures\n");
     for fig in figures.iter().filter(|f| f.ends_with(".png")) {
         let _ = writeln!(s, "![{fig}]({fig})\n");

@@ -645,6 +645,8 @@ pub fn compare(
     let se = (var / nb).sqrt();
     let block_t = if se > 0.0 { mean / se } else { 0.0 };
     let improved = d.iter().filter(|x| **x > 0.0).count() as f64 / nb;
+    // Sign test over blocks: robust where one block dominates the SSE (a start-up transient).
+    let sign_z = (improved * nb - nb / 2.0) / (nb / 4.0).sqrt();
     // Nodes share the stimulus and its errors: count time samples, not node-samples.
     let n_eff = (time_samples as f64 / tau_int.max(1.0)).max(2.0);
     let ratio = (before.sse / after.sse.max(1e-300)).max(1e-300);
@@ -658,9 +660,13 @@ pub fn compare(
         blocks_improved: improved,
         n_eff,
         ic_gain,
-        accepted: rel_gain >= MIN_REL_GAIN && block_t >= MIN_BLOCK_T && ic_gain > 0.0,
+        accepted: rel_gain >= MIN_REL_GAIN
+            && (block_t >= MIN_BLOCK_T || sign_z >= MIN_BLOCK_T)
+            && ic_gain > 0.0,
         rest_block_t: block_t_of(&before.rest_block_sse, &after.rest_block_sse),
-        keep: rel_gain >= 0.5 * MIN_REL_GAIN && block_t >= MIN_KEEP_T && ic_gain > 0.0,
+        keep: rel_gain >= 0.5 * MIN_REL_GAIN
+            && (block_t >= MIN_KEEP_T || sign_z >= MIN_KEEP_T)
+            && ic_gain > 0.0,
     }
 }
 
