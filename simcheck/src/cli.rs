@@ -240,8 +240,8 @@ fn run_cases(a: CasesArgs) -> anyhow::Result<()> {
             .collect::<anyhow::Result<_>>()?,
         None => Case::ALL.to_vec(),
     };
-    let mut md = format!(
-        "| case | truth | verdict | named effects | held-out RMSE before -> after (counts) | pass |\n|---|---|---|---|---|---|\n"
+    let mut md = String::from(
+        "| case | truth | verdict | named effects | held-out RMSE before -> after (counts) | pass |\n|---|---|---|---|---|---|\n",
     );
     let mut rows_json = Vec::new();
     let mut passed = 0;

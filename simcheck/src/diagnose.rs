@@ -16,6 +16,15 @@ use crate::search::{
     tau_int, Cv, Verdict,
 };
 
+/// The best candidate of a round: effect, its cross-validation, verdict, starts and params.
+type Best = (
+    EffectKind,
+    Cv,
+    Verdict,
+    Vec<Config>,
+    Vec<crate::search::Param>,
+);
+
 /// Search effort.
 #[derive(Debug, Clone, Copy)]
 pub struct Options {
@@ -326,13 +335,7 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
         }
     }
     for round in 1..=opts.max_effects {
-        let mut best: Option<(
-            EffectKind,
-            Cv,
-            Verdict,
-            Vec<Config>,
-            Vec<crate::search::Param>,
-        )> = None;
+        let mut best: Option<Best> = None;
         for e in EffectKind::ALL {
             if cur.has(e) || applicable(&ctx, &cur, e).is_err() {
                 continue;

@@ -62,6 +62,55 @@ pub struct Findings {
     pub tau_int_samples: f64,
     pub correlations: Vec<Corr>,
     pub splits: Vec<Split>,
+    /// How much the loaded residual differs from one press (a run of force above 10 % of the
+    /// peak) to the next: each press's mean residual on responsive nodes.
+    pub presses: Option<PressSpread>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct PressSpread {
+    pub presses: usize,
+    /// Standard deviation of the per-press mean residual.
+    pub sd_between: f64,
+    /// The same spread relative to the overall loaded residual RMS (1 = all of it).
+    pub share_of_rms: f64,
+}
+
+fn press_spread(ctx: &Context, resid: &[f64], w: &[f64]) -> Option<PressSpread> {
+    let ds = ctx.ds;
+    let n = ds.n;
+    let limit = 0.1 * ds.max_force();
+    let mut means = Vec::new();
+    let (mut acc, mut cnt) = (0.0, 0usize);
+    let (mut all2, mut all_n) = (0.0, 0usize);
+    for i in 0..=ds.len() {
+        let loaded = i < ds.len() && ds.force[i] > limit;
+        if loaded {
+            for k in 0..n {
+                if ctx.usable[i * n + k] && w[k] > 0.2 {
+                    acc += resid[i * n + k];
+                    all2 += resid[i * n + k].powi(2);
+                    cnt += 1;
+                    all_n += 1;
+                }
+            }
+        } else if cnt > 0 {
+            means.push(acc / cnt as f64);
+            acc = 0.0;
+            cnt = 0;
+        }
+    }
+    if means.len() < 3 || all_n == 0 {
+        return None;
+    }
+    let m = means.iter().sum::<f64>() / means.len() as f64;
+    let sd = (means.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (means.len() - 1) as f64).sqrt();
+    let rms = (all2 / all_n as f64).sqrt();
+    Some(PressSpread {
+        presses: means.len(),
+        sd_between: sd,
+        share_of_rms: if rms > 0.0 { sd / rms } else { 0.0 },
+    })
 }
 
 /// Per-node noise floor: sqrt of the 80 % trimmed mean of (r[i+1]-r[i])^2 / 2.
@@ -514,8 +563,10 @@ pub fn locate(ctx: &Context, resid: &[f64], pred: &[f64]) -> Findings {
             &|i, k| (ds.force[i] > 0.2 * fmax).then_some(k % ds.cols),
         ));
     }
+    let presses = press_spread(ctx, resid, &w);
     Findings {
         nodes,
+        presses,
         spans: span_list,
         acf_lag1: acf(ctx, resid, 1),
         acf_1s: acf(ctx, resid, lag_1s),

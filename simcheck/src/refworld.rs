@@ -171,6 +171,7 @@ fn force_at(s: &[(f64, f64, f64, f64, f64)], t: f64) -> f64 {
 }
 
 /// Generates the recording of `case` (about `duration_s` long) with `seed`.
+#[allow(clippy::needless_range_loop)] // nodes are indexed across several arrays
 pub fn generate(case: Case, seed: u64, duration_s: f64) -> Recording {
     let mut rng = Rng::new(seed, 77);
     let fast = case == Case::ScanSkew;

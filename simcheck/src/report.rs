@@ -180,8 +180,8 @@ pub fn resimulate(
             ds.trial[i] as u32,
             &mut out,
         );
-        for k in 0..n {
-            let p = ds.map.dom(out[k] as f64);
+        for (k, o) in out.iter().enumerate() {
+            let p = ds.map.dom(*o as f64);
             pred.push(p);
             let y = ds.y[i * n + k];
             if !ds.map.on_rail(y) {
@@ -607,6 +607,9 @@ fn markdown(
             "| {} | {} | {} | {:.3} | {:.3} | {:.1} |",
             nst.node, nst.row, nst.col, nst.rms, nst.noise, nst.ratio
         );
+    }
+    if let Some(p) = &f.presses {
+        let _ = writeln!(s, "\nPress to press: {} presses, standard deviation of the per-press mean residual {:.3} ({:.0} % of the loaded residual RMS).", p.presses, p.sd_between, 100.0 * p.share_of_rms);
     }
     if !f.spans.is_empty() {
         let _ = writeln!(

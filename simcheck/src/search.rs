@@ -711,3 +711,30 @@ pub fn tau_int(resid: &[f64], len: usize, n: usize) -> f64 {
 pub fn fit_all(ctx: &Context, starts: &[Config], params: &[Param], max_evals: usize) -> Config {
     fit(ctx, starts, params, &|_| true, max_evals)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nelder_mead_finds_a_quadratic_minimum() {
+        let mut f = |x: &[f64]| (x[0] - 1.5).powi(2) + 3.0 * (x[1] + 0.5).powi(2) + 2.0;
+        let (x, v) = nelder_mead(&mut f, &[0.0, 0.0], &[0.5, 0.5], 400);
+        assert!(
+            (x[0] - 1.5).abs() < 1e-3 && (x[1] + 0.5).abs() < 1e-3,
+            "{x:?}"
+        );
+        assert!((v - 2.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn block_t_and_sign_test_see_consistent_gains_only() {
+        let before = vec![10.0; 24];
+        let better: Vec<f64> = (0..24).map(|i| 9.0 + 0.01 * i as f64).collect();
+        let noise: Vec<f64> = (0..24)
+            .map(|i| if i % 2 == 0 { 9.0 } else { 11.0 })
+            .collect();
+        assert!(block_t_of(&before, &better) > 10.0);
+        assert!(block_t_of(&before, &noise).abs() < 1.0);
+    }
+}
