@@ -264,7 +264,9 @@ fn a_sigkilled_logger_leaves_a_recording_readable_up_to_its_last_flush() {
     let mut publisher = spawn_ready(
         "publisher",
         &prefix,
-        &["publisher", "--sensor", "s0", "sim", "--rate-hz", "1000"],
+        // 200 Hz: the logger's 64-sample buffer covers 320 ms of scheduling stalls on a busy
+        // machine, so a gap in the file can only come from the kill.
+        &["publisher", "--sensor", "s0", "sim", "--rate-hz", "200"],
         "publisher ready",
     );
     std::thread::sleep(Duration::from_millis(2500));
@@ -285,7 +287,7 @@ fn a_sigkilled_logger_leaves_a_recording_readable_up_to_its_last_flush() {
             raw.push((seq, t_capture_ns));
         }
     }
-    assert!(raw.len() > 1000, "only {} raw records", raw.len());
+    assert!(raw.len() > 300, "only {} raw records", raw.len());
     for w in raw.windows(2) {
         assert_eq!(w[1].0, w[0].0 + 1, "raw seq not consecutive");
     }
