@@ -228,3 +228,250 @@ fn calibrator_keeps_serving_through_bad_calibration_files() {
     }
     assert_eq!(forces.last().map(|f| f.1), Some(version));
 }
+
+/// Runs `taxel args...` and checks it fails with `code` and a one-line error naming `needles`
+/// (file and position), without a panic.
+fn fails(args: &[&str], code: i32, needles: &[&str]) {
+    let (got, _out, err) = common::run(&unique_prefix("bc"), args);
+    assert!(!err.contains("panicked"), "{args:?} panicked:\n{err}");
+    assert_eq!(got, code, "{args:?} exited {got}:\n{err}");
+    let line = err
+        .lines()
+        .find(|l| l.contains("error"))
+        .unwrap_or_else(|| panic!("{args:?}: no error line:\n{err}"));
+    for n in needles {
+        assert!(line.contains(n), "{args:?}: {n:?} missing in {line:?}");
+    }
+}
+
+fn raw(seq: u64) -> Record {
+    Record::Raw {
+        sensor: "s0".into(),
+        seq,
+        t_capture_ns: 1_000_000 * seq,
+        rows: 2,
+        cols: 2,
+        flags: 0,
+        source: 1,
+        full_scale: 1023.0,
+        counts: vec![100.0 + seq as f32, 101.0, 102.0, 103.0],
+    }
+}
+
+#[test]
+fn corrupt_inputs_fail_with_file_and_position() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let p = |name: &str| dir.path().join(name).display().to_string();
+    let write = |name: &str, bytes: &[u8]| std::fs::write(dir.path().join(name), bytes);
+
+    // Recording CSVs: a good one from the simulator, then damaged copies.
+    let scenario = p("s.toml");
+    std::fs::write(
+        &scenario,
+        "name = \"t\"\nrate_hz = 100\nseed = 1\nmounting = { curvature_m1 = 20 }\n\
+         [[step]]\nkind = \"rest\"\nduration_s = 3.0\n",
+    )
+    .expect("scenario");
+    for out in ["good.csv", "good.csv.gz"] {
+        let (code, _, err) = common::run(
+            "unused_",
+            &[
+                "publisher",
+                "--sensor",
+                "s0",
+                "sim",
+                "--scenario",
+                &scenario,
+                "--to-csv",
+                &p(out),
+            ],
+        );
+        assert_eq!(code, 0, "{err}");
+    }
+    let csv = std::fs::read_to_string(p("good.csv")).expect("good.csv");
+    let gz = std::fs::read(p("good.csv.gz")).expect("good.csv.gz");
+    let lines: Vec<&str> = csv.lines().collect();
+    let with_line = |k: usize, f: &dyn Fn(&str) -> String| {
+        let mut l: Vec<String> = lines.iter().map(|s| s.to_string()).collect();
+        l[k] = f(lines[k]);
+        l.join("\n")
+    };
+    write("trunc.csv.gz", &gz[..gz.len() / 2]).expect("write");
+    // Cut in the middle of the row on line 21.
+    let cut_csv = format!("{}\n{}", lines[..20].join("\n"), &lines[20][..20]);
+    write("cut.csv", cut_csv.as_bytes()).expect("write");
+    write("extra.csv", with_line(5, &|l| format!("{l},7")).as_bytes()).expect("write");
+    write(
+        "nan.csv",
+        with_line(9, &|l| {
+            let mut f: Vec<&str> = l.split(',').collect();
+            f[3] = "NaN";
+            f.join(",")
+        })
+        .as_bytes(),
+    )
+    .expect("write");
+    write(
+        "word.csv",
+        with_line(12, &|l| l.replacen(",1", ",x1", 1)).as_bytes(),
+    )
+    .expect("write");
+    let mut garbage = b"t_s,n0\n0,1\n".to_vec();
+    garbage.extend([0xff, 0xfe, 0x00, 0x80]);
+    write("garbage.csv", &garbage).expect("write");
+    write("empty.csv", b"").expect("write");
+
+    let (trunc, cut, extra, nan, word) = (
+        p("trunc.csv.gz"),
+        p("cut.csv"),
+        p("extra.csv"),
+        p("nan.csv"),
+        p("word.csv"),
+    );
+    let (garbage, empty) = (p("garbage.csv"), p("empty.csv"));
+    fails(
+        &["publisher", "replay", &trunc],
+        2,
+        &["trunc.csv.gz:", "deflate"],
+    );
+    fails(
+        &["publisher", "replay", &cut],
+        2,
+        &["cut.csv:21:", "fields"],
+    );
+    fails(
+        &["publisher", "replay", &extra],
+        2,
+        &["extra.csv:6:", "22 fields"],
+    );
+    fails(
+        &["publisher", "replay", &nan],
+        2,
+        &["nan.csv:10:", "column 4 (n2)"],
+    );
+    fails(
+        &["publisher", "replay", &word],
+        2,
+        &["word.csv:13:", "column"],
+    );
+    fails(
+        &["publisher", "replay", &garbage],
+        2,
+        &["garbage.csv:3", "UTF-8"],
+    );
+    fails(
+        &["publisher", "replay", &empty],
+        2,
+        &["empty.csv", "empty file"],
+    );
+    let out = p("x.toml");
+    fails(
+        &["calibrator", "fit", "--data", &extra, "--out", &out],
+        2,
+        &["extra.csv:6:"],
+    );
+    fails(
+        &["calibrator", "fit", "--data", &trunc, "--out", &out],
+        2,
+        &["trunc.csv.gz:"],
+    );
+    let model_out = p("x.taxcrv");
+    fails(
+        &["estimator", "train", "--data", &nan, "--out", &model_out],
+        2,
+        &["nan.csv:10:"],
+    );
+
+    // Curvature models: another format version, another kind of file, cut short.
+    let model = std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/models/curvature-default.taxcrv"
+    ))
+    .expect("shipped model");
+    let mut v99 = model.clone();
+    v99[8..10].copy_from_slice(&99u16.to_le_bytes());
+    write("v99.taxcrv", &v99).expect("write");
+    write("short.taxcrv", &model[..model.len() / 2]).expect("write");
+    write("cal.taxcrv", SIM_CAL.as_bytes()).expect("write");
+    let (v99, short, cal_as_model) = (p("v99.taxcrv"), p("short.taxcrv"), p("cal.taxcrv"));
+    let good_csv = p("good.csv");
+    for (m, needles) in [
+        (&v99, &["v99.taxcrv", "version 99"][..]),
+        (
+            &cal_as_model,
+            &["cal.taxcrv", "bad magic bytes at offset 0"][..],
+        ),
+        (&short, &["short.taxcrv", "corrupt curvature model"][..]),
+    ] {
+        fails(
+            &["estimator", "eval", "--model", m, "--data", &good_csv],
+            2,
+            needles,
+        );
+        fails(&["estimator", "run", "--model", m], 2, needles);
+    }
+    // A model file where a calibration belongs.
+    fails(
+        &["calibrator", "run", "--calibration", &v99],
+        2,
+        &["v99.taxcrv", "not UTF-8 text (byte"],
+    );
+
+    // Record files: a tail cut short (what a crashed logger leaves) exports what is there with
+    // a warning; damage inside the file, another magic or version fail with the position.
+    let good = dir.path().join("good.taxrec");
+    let mut w = taxel_formats::RecordFileWriter::create(&good).expect("create");
+    for seq in 0..100 {
+        w.append(&raw(seq)).expect("append");
+    }
+    w.finish().expect("finish");
+    let rec = std::fs::read(&good).expect("read");
+    write("cut.taxrec", &rec[..rec.len() - 7]).expect("write");
+    // A flipped bit inside the payload of record 50 (records are `u32 len | u32 crc | payload`
+    // after a 12-byte header).
+    let mut at = 12;
+    for _ in 0..50 {
+        let len = u32::from_le_bytes([rec[at], rec[at + 1], rec[at + 2], rec[at + 3]]);
+        at += 8 + len as usize;
+    }
+    let mut flip = rec.clone();
+    flip[at + 8 + 2] ^= 0x10;
+    write("flip.taxrec", &flip).expect("write");
+    let mut other = rec.clone();
+    other[..8].copy_from_slice(b"NOTAREC!");
+    write("magic.taxrec", &other).expect("write");
+    let mut v9 = rec.clone();
+    v9[8..10].copy_from_slice(&9u16.to_le_bytes());
+    write("v9.taxrec", &v9).expect("write");
+    let csv_out = p("out.csv");
+    let (code, _, err) = common::run(
+        "unused_",
+        &["logger", "export", &p("cut.taxrec"), "--csv", &csv_out],
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("cut.taxrec: cut short at record 99 at byte"),
+        "{err}"
+    );
+    let exported = std::fs::read_to_string(&csv_out).expect("exported");
+    assert_eq!(
+        exported.lines().count(),
+        1 + 99,
+        "header + 99 complete frames"
+    );
+    fails(
+        &["logger", "export", &p("flip.taxrec"), "--csv", &csv_out],
+        2,
+        &["flip.taxrec: damaged at record 50 at byte ", "checksum"],
+    );
+    fails(
+        &["logger", "export", &p("magic.taxrec"), "--csv", &csv_out],
+        2,
+        &["magic.taxrec", "bad magic at byte 0"],
+    );
+    fails(
+        &["logger", "export", &p("v9.taxrec"), "--csv", &csv_out],
+        2,
+        &["v9.taxrec", "version 9"],
+    );
+}

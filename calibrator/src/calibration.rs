@@ -14,11 +14,8 @@ use taxel_msgs::MAX_BLOCKS;
 /// Why a calibration file was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum CalibrationError {
-    #[error("{path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
+    #[error("{path}: {error}")]
+    Io { path: String, error: std::io::Error },
     #[error("{path}: {message}")]
     Parse { path: String, message: String },
     #[error("{path}: {message}")]
@@ -403,9 +400,9 @@ impl Calibration {
     /// Reads, parses and validates a calibration file.
     pub fn load(path: &Path) -> Result<Calibration, CalibrationError> {
         let p = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|source| CalibrationError::Io {
+        let bytes = std::fs::read(path).map_err(|error| CalibrationError::Io {
             path: p.clone(),
-            source,
+            error,
         })?;
         let text = String::from_utf8(bytes).map_err(|e| CalibrationError::Parse {
             path: p.clone(),

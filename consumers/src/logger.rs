@@ -13,7 +13,6 @@ use clap::{Parser, Subcommand};
 use iceoryx2::prelude::*;
 use taxel_formats::csv::{Columns, Row};
 use taxel_formats::mcap::McapRecordWriter;
-use taxel_formats::records::Tail;
 use taxel_formats::{Record, RecordFileReader, RecordFileWriter, RecordingWriter};
 use taxel_msgs::{
     raw_flags, sensor_id_str, CurvatureEstimate, ForceSample, RawFrame, Reference, Stream,
@@ -582,12 +581,7 @@ fn export(a: ExportArgs) -> Result<(), Failure> {
             } => log.curvature.push((seq, curvature_m1)),
         }
     }
-    if let Some(Tail::Incomplete { offset, reason }) = reader.tail() {
-        warn!(
-            "{}: stopped at byte {offset} ({reason}); everything before it was exported",
-            a.file.display()
-        );
-    }
+    let damaged = incomplete_tail(&reader, &a.file);
     if order.is_empty() {
         return Err(Failure::config(anyhow::anyhow!(
             "{}: no records{}",
@@ -604,7 +598,27 @@ fn export(a: ExportArgs) -> Result<(), Failure> {
         let n = write_sensor_csv(&path, log).runtime_err()?;
         println!("{sensor}: {n} frames -> {}", path.display());
     }
-    Ok(())
+    damaged.map_or(Ok(()), |e| Err(Failure::config(e)))
+}
+
+/// Reports where the reader stopped early. A tail cut short by the end of the file (what a
+/// crash of the logger leaves) is a warning: everything before it is exported. Damage inside
+/// the file (checksum, length or decoding) is returned as the error to fail with after the
+/// records before it were exported.
+fn incomplete_tail(reader: &RecordFileReader, file: &Path) -> Option<anyhow::Error> {
+    let at = reader.stop_position()?;
+    if reader.damaged() {
+        Some(anyhow::anyhow!(
+            "{}: damaged at {at}; the records before it were exported, the rest of the file was not read",
+            file.display()
+        ))
+    } else {
+        warn!(
+            "{}: cut short at {at}; everything before it was exported",
+            file.display()
+        );
+        None
+    }
 }
 
 /// Writes every record (of `sensor`, if given) into an MCAP file, in record-file order.
@@ -631,12 +645,7 @@ fn export_mcap(file: &Path, out: &Path, sensor: Option<&str>) -> Result<(), Fail
             .or_default() += 1;
         w.write(&rec).runtime_err()?;
     }
-    if let Some(Tail::Incomplete { offset, reason }) = reader.tail() {
-        warn!(
-            "{}: stopped at byte {offset} ({reason}); everything before it was exported",
-            file.display()
-        );
-    }
+    let damaged = incomplete_tail(&reader, file);
     if per_topic.is_empty() {
         drop(w);
         let _ = std::fs::remove_file(out);
@@ -651,7 +660,7 @@ fn export_mcap(file: &Path, out: &Path, sensor: Option<&str>) -> Result<(), Fail
         println!("{topic}: {k} messages");
     }
     println!("{n} messages -> {}", out.display());
-    Ok(())
+    damaged.map_or(Ok(()), |e| Err(Failure::config(e)))
 }
 
 fn write_sensor_csv(path: &Path, log: &SensorLog) -> anyhow::Result<usize> {

@@ -14,16 +14,16 @@ use std::path::{Path, PathBuf};
 /// the line (1 = the header).
 #[derive(Debug, thiserror::Error)]
 pub enum CsvError {
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Io {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
-    #[error("{path}:{line}: {source}")]
+    #[error("{path}:{line}: {error}")]
     IoAt {
         path: PathBuf,
         line: usize,
-        source: std::io::Error,
+        error: std::io::Error,
     },
     #[error("{path}: empty file (expected a header row)")]
     Empty { path: PathBuf },
@@ -137,7 +137,7 @@ impl Recording {
     pub fn read(path: &Path) -> Result<Recording, CsvError> {
         let file = File::open(path).map_err(|source| CsvError::Io {
             path: path.to_path_buf(),
-            source,
+            error: source,
         })?;
         let mut reader = BufReader::with_capacity(1 << 16, file);
         let is_gz = reader
@@ -145,7 +145,7 @@ impl Recording {
             .map(|b| b.starts_with(&[0x1f, 0x8b]))
             .map_err(|source| CsvError::Io {
                 path: path.to_path_buf(),
-                source,
+                error: source,
             })?;
         if is_gz {
             let dec = flate2::bufread::MultiGzDecoder::new(reader);
@@ -166,7 +166,7 @@ impl Recording {
             let n = read_line(&mut input, &mut line).map_err(|source| CsvError::IoAt {
                 path: p(),
                 line: line_no + 1,
-                source,
+                error: source,
             })?;
             if n == 0 {
                 return Err(CsvError::Empty { path: p() });
@@ -276,7 +276,7 @@ impl Recording {
             let n = read_line(&mut input, &mut line).map_err(|source| CsvError::IoAt {
                 path: p(),
                 line: line_no + 1,
-                source,
+                error: source,
             })?;
             if n == 0 {
                 break;
@@ -433,7 +433,7 @@ impl RecordingWriter {
     ) -> Result<RecordingWriter, CsvError> {
         let file = File::create(path).map_err(|source| CsvError::Io {
             path: path.to_path_buf(),
-            source,
+            error: source,
         })?;
         let buf = BufWriter::with_capacity(1 << 16, file);
         let out: Box<dyn Write> = if path.extension().is_some_and(|e| e == "gz") {
@@ -480,7 +480,7 @@ impl RecordingWriter {
             .write_all(s.as_bytes())
             .map_err(|source| CsvError::Io {
                 path: self.path.clone(),
-                source,
+                error: source,
             })
     }
 
@@ -521,7 +521,7 @@ impl RecordingWriter {
     pub fn finish(mut self) -> Result<(), CsvError> {
         self.out.flush().map_err(|source| CsvError::Io {
             path: self.path.clone(),
-            source,
+            error: source,
         })
     }
 }

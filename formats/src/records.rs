@@ -75,10 +75,10 @@ pub enum Record {
 /// Why a record file could not be opened or written.
 #[derive(Debug, thiserror::Error)]
 pub enum RecordError {
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Io {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
     #[error("{path}: not a taxel record file (bad magic at byte 0)")]
     BadMagic { path: PathBuf },
@@ -103,7 +103,7 @@ impl RecordFileWriter {
     pub fn create(path: &Path) -> Result<RecordFileWriter, RecordError> {
         let io = |source| RecordError::Io {
             path: path.to_path_buf(),
-            source,
+            error: source,
         };
         let file = File::create(path).map_err(io)?;
         let mut out = BufWriter::with_capacity(1 << 18, file);
@@ -135,7 +135,7 @@ impl RecordFileWriter {
             .write_all(&self.buf)
             .map_err(|source| RecordError::Io {
                 path: self.path.clone(),
-                source,
+                error: source,
             })?;
         self.pending += self.buf.len() as u64;
         Ok(())
@@ -146,7 +146,7 @@ impl RecordFileWriter {
     pub fn flush(&mut self) -> Result<(), RecordError> {
         self.out.flush().map_err(|source| RecordError::Io {
             path: self.path.clone(),
-            source,
+            error: source,
         })?;
         self.committed += self.pending;
         self.pending = 0;
@@ -166,7 +166,7 @@ impl RecordFileWriter {
             .sync_all()
             .map_err(|source| RecordError::Io {
                 path: self.path.clone(),
-                source,
+                error: source,
             })?;
         Ok(self.committed)
     }
@@ -189,13 +189,17 @@ pub struct RecordFileReader {
     offset: u64,
     tail: Option<Tail>,
     buf: Vec<u8>,
+    /// Complete records returned so far.
+    records: u64,
+    /// The reader stopped because the file ended (cut short), not at damaged bytes.
+    cut: bool,
 }
 
 impl RecordFileReader {
     pub fn open(path: &Path) -> Result<RecordFileReader, RecordError> {
         let io = |source| RecordError::Io {
             path: path.to_path_buf(),
-            source,
+            error: source,
         };
         let file = File::open(path).map_err(io)?;
         let mut input = BufReader::with_capacity(1 << 18, file);
@@ -227,6 +231,8 @@ impl RecordFileReader {
             offset: HEADER_LEN,
             tail: None,
             buf: Vec::new(),
+            records: 0,
+            cut: false,
         })
     }
 
@@ -237,6 +243,31 @@ impl RecordFileReader {
     /// How the file ended; `None` until the reader has reached the end.
     pub fn tail(&self) -> Option<&Tail> {
         self.tail.as_ref()
+    }
+
+    /// Complete records read so far (after an incomplete tail: the index of the record where
+    /// reading stopped, counting from 0).
+    pub fn records_read(&self) -> u64 {
+        self.records
+    }
+
+    /// True when reading stopped at damaged bytes inside the file (a checksum mismatch, an
+    /// implausible length, a record that does not decode) rather than at a tail cut short by
+    /// the end of the file, which is what a crash of the writer leaves.
+    pub fn damaged(&self) -> bool {
+        matches!(self.tail, Some(Tail::Incomplete { .. })) && !self.cut
+    }
+
+    /// Where reading stopped, for messages: `record N at byte X (reason)`; None if the file
+    /// ended cleanly or has not been read to its end.
+    pub fn stop_position(&self) -> Option<String> {
+        match &self.tail {
+            Some(Tail::Incomplete { offset, reason }) => Some(format!(
+                "record {} at byte {offset} ({reason})",
+                self.records
+            )),
+            _ => None,
+        }
     }
 
     fn stop(&mut self, reason: String) -> Option<Record> {
@@ -267,6 +298,7 @@ impl RecordFileReader {
             return None;
         }
         if got < 8 {
+            self.cut = true;
             return self.stop(format!("record header cut after {got} of 8 bytes"));
         }
         let len = u32::from_le_bytes([head[0], head[1], head[2], head[3]]);
@@ -276,6 +308,7 @@ impl RecordFileReader {
         }
         self.buf.resize(len as usize, 0);
         if let Err(e) = self.input.read_exact(&mut self.buf) {
+            self.cut = e.kind() == std::io::ErrorKind::UnexpectedEof;
             return self.stop(format!("record of {len} bytes cut short ({e})"));
         }
         if crc32(&self.buf) != crc {
@@ -286,6 +319,7 @@ impl RecordFileReader {
         match decoded {
             Ok((rec, used)) if used == self.buf.len() => {
                 self.offset += 8 + len as u64;
+                self.records += 1;
                 Some(rec)
             }
             Ok(_) => self.stop("record has trailing bytes".into()),

@@ -105,15 +105,12 @@ pub struct CurvatureModel {
 /// Why a model could not be trained, loaded or used.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
-    #[error("{path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
+    Io { path: String, error: std::io::Error },
+    #[error("{path}: {error}")]
     Format {
         path: String,
-        source: envelope::EnvelopeError,
+        error: envelope::EnvelopeError,
     },
     #[error("{path}: model expects {expected} nodes per baseline, the data has {found}")]
     Layout {
@@ -365,17 +362,20 @@ impl CurvatureModel {
             envelope::encode("curvature model", MAGIC, FORMAT_VERSION, self).map_err(|source| {
                 ModelError::Format {
                     path: p.clone(),
-                    source,
+                    error: source,
                 }
             })?;
-        std::fs::write(path, bytes).map_err(|source| ModelError::Io { path: p, source })
+        std::fs::write(path, bytes).map_err(|source| ModelError::Io {
+            path: p,
+            error: source,
+        })
     }
 
     pub fn load(path: &Path) -> Result<CurvatureModel, ModelError> {
         let p = path.display().to_string();
         let bytes = std::fs::read(path).map_err(|source| ModelError::Io {
             path: p.clone(),
-            source,
+            error: source,
         })?;
         Self::from_bytes(&p, &bytes)
     }
@@ -384,7 +384,7 @@ impl CurvatureModel {
         let m: CurvatureModel = envelope::decode("curvature model", MAGIC, FORMAT_VERSION, bytes)
             .map_err(|source| ModelError::Format {
             path: path.to_string(),
-            source,
+            error: source,
         })?;
         let d = n_features(m.n_nodes);
         let ok = m.feature_names.len() == d
@@ -399,7 +399,7 @@ impl CurvatureModel {
         if !ok {
             return Err(ModelError::Format {
                 path: path.to_string(),
-                source: envelope::EnvelopeError::Corrupt {
+                error: envelope::EnvelopeError::Corrupt {
                     kind: "curvature model",
                     reason: "inconsistent feature layout".into(),
                 },
