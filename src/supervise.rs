@@ -363,6 +363,8 @@ impl Supervisor {
                 } else {
                     p.status.map_or("still running?".to_string(), exit_reason)
                 });
+            } else if slot.final_status.is_none() {
+                slot.final_status = Some("down at the stop (its restart was pending)".to_string());
             }
             all_ok &= slot.final_ok && !slot.gave_up;
         }
