@@ -8,7 +8,7 @@ use taxel_simcheck::cli::run_case;
 use taxel_simcheck::refworld::Case;
 
 fn check(case: Case) {
-    let row = run_case(case, 1, 240.0, None).expect("diagnose runs");
+    let row = run_case(case, 1, 300.0, None).expect("diagnose runs");
     let (verdict, effects) = case.truth();
     assert_eq!(
         row.verdict,
