@@ -623,6 +623,17 @@ pub fn evaluate_with(
                     }
                 }
                 *th = solve_spd(&a, &b, pdim);
+                if th[0] < 0.0 {
+                    // A conductance baseline cannot be negative (a constant force, for one,
+                    // cannot separate it from the gain): refit with the baseline at zero.
+                    for u in 0..pdim {
+                        a[u * pdim] = 0.0;
+                        a[u] = 0.0;
+                    }
+                    a[0] = 1.0;
+                    b[0] = 0.0;
+                    *th = solve_spd(&a, &b, pdim);
+                }
             }
         }
         // Latent thermal: refit the common-mode factor on the knots.

@@ -36,12 +36,28 @@ pub fn extended_model(
     } else {
         0.0
     };
-    let b: Vec<f64> = d.final_theta.iter().map(|t| t[0].max(1e-12)).collect();
-    let a: Vec<f64> = d
-        .final_theta
+    // The simulator needs b >= 0 and a >= 0. Where the fit traded a negative baseline against a
+    // larger gain (collinear, e.g. a constant force), keep the conductance at the typical load.
+    let fmax = ds.max_force();
+    let loaded: Vec<f64> = ds
+        .force
         .iter()
-        .map(|t| t.last().copied().unwrap_or(0.0).max(0.0))
+        .filter(|&&f| f > 0.1 * fmax)
+        .map(|f| f.powf(cfg.exponent))
         .collect();
+    let p_bar = (loaded.iter().sum::<f64>() / loaded.len().max(1) as f64).max(1e-12);
+    let mut b = Vec::with_capacity(ds.n);
+    let mut a = Vec::with_capacity(ds.n);
+    for t in &d.final_theta {
+        let (mut bk, mut ak) = (t[0], t.last().copied().unwrap_or(0.0));
+        if bk <= 0.0 {
+            ak = (ak + bk / p_bar).max(0.0);
+            bk = 1e-3 * (ak * p_bar).max(1e-12);
+            ak = (ak - bk / p_bar).max(0.0);
+        }
+        b.push(bk.max(1e-12));
+        a.push(ak.max(0.0));
+    }
     let med = |v: &[f64]| -> f64 {
         let mut s = v.to_vec();
         s.sort_by(f64::total_cmp);

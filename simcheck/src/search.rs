@@ -57,7 +57,7 @@ impl Param {
 
     pub fn set(self, c: &mut Config, v: f64) {
         match self {
-            Param::LnExponent => c.exponent = v.clamp(0.2f64.ln(), 3f64.ln()).exp(),
+            Param::LnExponent => c.exponent = v.clamp(0.2f64.ln(), 3f64.ln()).exp().clamp(0.2, 3.0),
             Param::LnFloor => c.r_floor_ohm = v.clamp(-30.0, 30.0).exp(),
             Param::CreepC(j) => {
                 if let Some(cr) = &mut c.creep {
