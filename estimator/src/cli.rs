@@ -123,6 +123,7 @@ pub struct RunArgs {
     #[arg(long, default_value_t = DetectorConfig::default().rebaseline_s)]
     pub rebaseline_s: f64,
     /// Curvature model file (from `train`); without it the configured --curvature-m1 is used.
+    /// The file is watched: a valid replacement is used from the next no-load window on.
     #[arg(long)]
     pub model: Option<PathBuf>,
 }
@@ -167,11 +168,18 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
         curvature_m1: a.curvature_m1,
         detector,
         model,
+        model_path: a.model.clone(),
     };
     let shutdown = Shutdown::install().runtime_err()?;
     let ipc = Ipc::open(&common.prefix, &format!("estimator-{}", a.sensor)).runtime_err()?;
     let s = crate::run::run(&ipc, &cfg, &shutdown).runtime_err()?;
-    info!(sensor = %a.sensor, frames = s.frames, estimates = s.estimates, "estimator stopped");
+    info!(
+        sensor = %a.sensor,
+        frames = s.frames,
+        estimates = s.estimates,
+        reloads = s.reloads,
+        "estimator stopped"
+    );
     Ok(())
 }
 

@@ -47,6 +47,12 @@ impl<'m> Estimator<'m> {
         self.count
     }
 
+    /// Continues the numbering (`estimate_index`) of an earlier estimator, e.g. after the
+    /// model was reloaded.
+    pub fn continue_from(&mut self, count: u32) {
+        self.count = count;
+    }
+
     /// Feeds a frame; returns a new estimate when a no-load window completes. Fails once, on
     /// the first frame, if the model was made for another node count.
     pub fn push(&mut self, frame: &RawFrame) -> Result<Option<&CurvatureEstimate>, ModelError> {

@@ -10,5 +10,6 @@ pub mod estimate;
 pub mod features;
 pub mod model;
 pub mod plot;
+pub mod reload;
 pub mod run;
 pub mod synth;
