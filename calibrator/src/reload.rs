@@ -4,7 +4,6 @@
 //! channel. The hot loop only does a non-blocking `try_recv` per sample. A file that fails to
 //! load is reported once per change and the previous model keeps serving.
 
-use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{self, Receiver, Sender};
@@ -12,6 +11,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::Duration;
 
+use taxel_runtime::filewatch::FileSignature;
 use tracing::{error, info, warn};
 
 use crate::calibration::Calibration;
@@ -27,24 +27,8 @@ pub struct Loaded {
     pub generation: u32,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Signature {
-    ino: u64,
-    dev: u64,
-    len: u64,
-    mtime_ns: i128,
-    ctime_ns: i128,
-}
-
-fn signature(path: &Path) -> Option<Signature> {
-    let m = std::fs::metadata(path).ok()?;
-    Some(Signature {
-        ino: m.ino(),
-        dev: m.dev(),
-        len: m.len(),
-        mtime_ns: m.mtime() as i128 * 1_000_000_000 + m.mtime_nsec() as i128,
-        ctime_ns: m.ctime() as i128 * 1_000_000_000 + m.ctime_nsec() as i128,
-    })
+fn signature(path: &Path) -> Option<FileSignature> {
+    FileSignature::of(path)
 }
 
 /// Loads a calibration and checks it fits an array of `rows x cols`.

@@ -5,10 +5,10 @@
 //! wrong-geometry file, or a deleted one, is reported once per change and the loaded model keeps
 //! serving; a later good file is picked up.
 
-use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use taxel_runtime::filewatch::FileSignature;
 use tracing::{error, info};
 
 use crate::model::CurvatureModel;
@@ -16,31 +16,15 @@ use crate::model::CurvatureModel;
 /// How long a changed file must stay unchanged before it is read.
 pub const SETTLE: Duration = Duration::from_millis(50);
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Signature {
-    ino: u64,
-    dev: u64,
-    len: u64,
-    mtime_ns: i128,
-    ctime_ns: i128,
-}
-
-fn signature(path: &Path) -> Option<Signature> {
-    let m = std::fs::metadata(path).ok()?;
-    Some(Signature {
-        ino: m.ino(),
-        dev: m.dev(),
-        len: m.len(),
-        mtime_ns: m.mtime() as i128 * 1_000_000_000 + m.mtime_nsec() as i128,
-        ctime_ns: m.ctime() as i128 * 1_000_000_000 + m.ctime_nsec() as i128,
-    })
+fn signature(path: &Path) -> Option<FileSignature> {
+    FileSignature::of(path)
 }
 
 /// Watches one model file.
 pub struct ModelWatch {
     path: PathBuf,
-    last: Option<Signature>,
-    pending: Option<(Option<Signature>, Instant)>,
+    last: Option<FileSignature>,
+    pending: Option<(Option<FileSignature>, Instant)>,
     /// Loads that succeeded after the first (the generation of the serving model - 1).
     pub reloads: u32,
 }

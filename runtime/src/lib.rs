@@ -6,6 +6,7 @@
 //! every send so consumers wake on data through a WaitSet).
 
 pub mod clock;
+pub mod filewatch;
 pub mod ipc;
 pub mod process;
 pub mod progress;
