@@ -294,3 +294,33 @@ impl Dataset {
         self.force.iter().cloned().fold(0.0, f64::max)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn readout_maps_round_trip() {
+        let maps = [
+            ReadoutMap::Amplifier {
+                scale: 102.3,
+                rg: 5600.0,
+                rail: 1023.0,
+            },
+            ReadoutMap::Resistance,
+            ReadoutMap::Divider {
+                max: 1023.0,
+                r_ref: 1000.0,
+            },
+        ];
+        for m in maps {
+            for g in [1e-5, 1e-4, 1e-3] {
+                let y = m.from_g(g);
+                assert!(
+                    (m.to_g(y) - g).abs() < 1e-9 * g.max(1.0) + 1e-12,
+                    "{m:?} {g}"
+                );
+            }
+        }
+    }
+}

@@ -12,6 +12,7 @@ pub mod data;
 pub mod diagnose;
 pub mod locate;
 pub mod model;
+pub mod numeric;
 pub mod refworld;
 pub mod report;
 pub mod search;

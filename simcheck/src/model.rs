@@ -9,6 +9,8 @@
 //! the row crosstalk `G (1 - Rs sum_row G)`, and the readout.
 
 use crate::data::{Dataset, ReadoutMap};
+pub use crate::numeric::{centre_by_level, play_gap, solve_spd};
+use crate::numeric::{hat, lowpass};
 
 /// The effects the tool can name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -286,61 +288,6 @@ pub fn load_series(f: impl Iterator<Item = f64>, dt: &[f64], cfg: &Config, out: 
     }
 }
 
-/// Hysteresis as a play operator of half-width `r` (N) on the total force: `play_r(F) - F`,
-/// between -r (loading) and +r (unloading). Each node scales it by its own amplitude.
-pub fn play_gap(f: &[f64], r: f64) -> Vec<f64> {
-    let mut z: Option<f64> = None;
-    f.iter()
-        .map(|&fi| {
-            let l = fi.max(0.0);
-            let zz = z.map_or(l, |z: f64| z.clamp(l - r, l + r));
-            z = Some(zz);
-            zz - l
-        })
-        .collect()
-}
-
-/// `x` minus its mean over samples with about the same force (32 force bins).
-pub fn centre_by_level(f: &[f64], mut x: Vec<f64>) -> Vec<f64> {
-    const BINS: usize = 32;
-    let fmax = f.iter().cloned().fold(0.0, f64::max).max(1e-12);
-    let bin = |v: f64| (((v.max(0.0) / fmax) * BINS as f64) as usize).min(BINS - 1);
-    let mut sum = [0.0f64; BINS];
-    let mut cnt = [0usize; BINS];
-    for (fi, xi) in f.iter().zip(&x) {
-        sum[bin(*fi)] += xi;
-        cnt[bin(*fi)] += 1;
-    }
-    for (fi, xi) in f.iter().zip(x.iter_mut()) {
-        let b = bin(*fi);
-        *xi -= sum[b] / cnt[b].max(1) as f64;
-    }
-    x
-}
-
-fn lowpass(x: &[f64], dt: &[f64], tau: f64) -> Vec<f64> {
-    let mut out = Vec::with_capacity(x.len());
-    let mut s = x.first().copied().unwrap_or(0.0);
-    for (i, &v) in x.iter().enumerate() {
-        s += (v - s) * (1.0 - (-dt[i] / tau).exp());
-        out.push(s);
-    }
-    out
-}
-
-/// Piecewise-linear interpolation weights of time `t` on `knots`.
-fn hat(knots: &[f64], t: f64) -> (usize, f64) {
-    if knots.len() < 2 || t <= knots[0] {
-        return (0, 0.0);
-    }
-    let last = knots.len() - 1;
-    if t >= knots[last] {
-        return (last - 1, 1.0);
-    }
-    let j = knots.partition_point(|&v| v <= t).max(1);
-    (j - 1, (t - knots[j - 1]) / (knots[j] - knots[j - 1]))
-}
-
 /// Latent thermal knots for a recording: about one per 60 s (at least 4, at most 24).
 pub fn latent_knots(ds: &Dataset) -> Vec<f64> {
     let k = ((ds.duration() / 60.0).round() as usize + 1).clamp(4, 24);
@@ -349,53 +296,6 @@ pub fn latent_knots(ds: &Dataset) -> Vec<f64> {
     (0..k)
         .map(|j| t0 + span * j as f64 / (k - 1) as f64)
         .collect()
-}
-
-/// Solves the symmetric positive (semi)definite system `a x = b` (a is p x p, row-major) with a
-/// small ridge; returns zeros when it fails.
-pub fn solve_spd(a: &[f64], b: &[f64], p: usize) -> Vec<f64> {
-    let tr: f64 = (0..p).map(|i| a[i * p + i]).sum::<f64>() / p.max(1) as f64;
-    let lam = 1e-9 * tr.max(1e-300);
-    let mut l = vec![0.0; p * p];
-    for i in 0..p {
-        for j in 0..=i {
-            let mut s = a[i * p + j] + if i == j { lam } else { 0.0 };
-            for k in 0..j {
-                s -= l[i * p + k] * l[j * p + k];
-            }
-            if i == j {
-                if s.is_nan() || s <= 1e-9 * (a[i * p + i] + lam) {
-                    // Not identified (collinear with the others, e.g. a constant force, or no
-                    // training sample): shrink this coefficient to zero instead.
-                    s = (a[i * p + i] + lam).max(1e-300) * 1e6;
-                }
-                l[i * p + i] = s.sqrt();
-            } else {
-                l[i * p + j] = s / l[j * p + j];
-            }
-        }
-    }
-    let mut y = vec![0.0; p];
-    for i in 0..p {
-        let mut s = b[i];
-        for k in 0..i {
-            s -= l[i * p + k] * y[k];
-        }
-        y[i] = s / l[i * p + i];
-    }
-    let mut x = vec![0.0; p];
-    for i in (0..p).rev() {
-        let mut s = y[i];
-        for k in i + 1..p {
-            s -= l[k * p + i] * x[k];
-        }
-        x[i] = s / l[i * p + i];
-    }
-    if x.iter().all(|v| v.is_finite()) {
-        x
-    } else {
-        vec![0.0; p]
-    }
 }
 
 /// Evaluates `cfg`: fits the per-node linear parameters on the samples where `train(i)` is
@@ -770,71 +670,4 @@ fn zhat(th: &[f64], lay: &Layout, cx: f64, hv: [f64; 2], sp: f64) -> f64 {
         z += th[th.len() - 3] * hv[0] + th[th.len() - 2] * hv[1];
     }
     z + th[th.len() - 1] * sp
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn least_squares_solves_and_survives_collinear_columns() {
-        // [[4, 2], [2, 3]] x = [2, 1] -> x = [0.5, 0]
-        let x = solve_spd(&[4.0, 2.0, 2.0, 3.0], &[2.0, 1.0], 2);
-        assert!((x[0] - 0.5).abs() < 1e-6 && x[1].abs() < 1e-6, "{x:?}");
-        // Two identical columns: a finite answer that still fits.
-        let x = solve_spd(&[1.0, 1.0, 1.0, 1.0], &[2.0, 2.0], 2);
-        assert!(x.iter().all(|v| v.is_finite()));
-        assert!((x[0] + x[1] - 2.0).abs() < 1e-3, "{x:?}");
-    }
-
-    #[test]
-    fn play_gap_lags_by_its_half_width_and_is_centred_per_level() {
-        let f: Vec<f64> = (0..200)
-            .map(|i| {
-                if i < 100 {
-                    i as f64 * 0.1
-                } else {
-                    (200 - i) as f64 * 0.1
-                }
-            })
-            .collect();
-        let g = play_gap(&f, 0.5);
-        assert!(g.iter().all(|v| v.abs() <= 0.5 + 1e-12));
-        assert!((g[50] + 0.5).abs() < 1e-12, "loading lags below: {}", g[50]);
-        assert!(
-            (g[150] - 0.5).abs() < 1e-12,
-            "unloading lags above: {}",
-            g[150]
-        );
-        let c = centre_by_level(&f, g);
-        // The same force on the two branches: opposite signs after centring.
-        assert!(c[50] < 0.0 && c[150] > 0.0);
-        assert!(c.iter().sum::<f64>().abs() < 1e-9);
-    }
-
-    #[test]
-    fn readout_maps_round_trip() {
-        use crate::data::ReadoutMap;
-        let maps = [
-            ReadoutMap::Amplifier {
-                scale: 102.3,
-                rg: 5600.0,
-                rail: 1023.0,
-            },
-            ReadoutMap::Resistance,
-            ReadoutMap::Divider {
-                max: 1023.0,
-                r_ref: 1000.0,
-            },
-        ];
-        for m in maps {
-            for g in [1e-5, 1e-4, 1e-3] {
-                let y = m.from_g(g);
-                assert!(
-                    (m.to_g(y) - g).abs() < 1e-9 * g.max(1.0) + 1e-12,
-                    "{m:?} {g}"
-                );
-            }
-        }
-    }
 }
