@@ -114,7 +114,7 @@ fn effect_params(
             }
         }
         EffectKind::Hysteresis => {
-            if let Some((_, r)) = cfg.hysteresis {
+            if let Some(r) = cfg.hysteresis {
                 p.insert("weight".into(), hysteresis_weight(ds, cfg, theta));
                 p.insert("threshold_n".into(), r);
             }

@@ -72,8 +72,8 @@ pub struct Config {
     /// Creep as two Prony terms `(c, tau_s)`: `L + sum c lowpass_tau(L)` (a fast and a slow
     /// one; together they follow log-time creep over two decades).
     pub creep: Option<[(f64, f64); 2]>,
-    /// Hysteresis `(w, r_n)`: `(1 - w) L + w play_r(L)`.
-    pub hysteresis: Option<(f64, f64)>,
+    /// Hysteresis: half-width `r` (N) of the play operators; the amplitudes are per node.
+    pub hysteresis: Option<f64>,
     pub thermal: Option<Thermal>,
     /// Curvature sensitivity: `kappa_s` (1/m) with a curvature column, else `beta` (per unit
     /// log-baseline shift of the trial).
@@ -434,7 +434,7 @@ pub fn evaluate_with(
     // difference between branches (a loop), never a level-dependent offset the static law
     // should carry.
     let (hyst, hyst2): (Vec<f64>, Vec<f64>) = match cfg.hysteresis {
-        Some((_, r)) => (
+        Some(r) => (
             centre_by_level(&ds.force, play_gap(&ds.force, r)),
             centre_by_level(&ds.force, play_gap(&ds.force, 4.0 * r)),
         ),
@@ -649,13 +649,6 @@ pub struct Layout {
 }
 
 impl Layout {
-    pub fn of(cfg: &Config) -> Layout {
-        Layout {
-            n_int: 1,
-            curv_k: cfg.curv_base,
-            hyst: cfg.hysteresis.is_some(),
-        }
-    }
     pub fn dim(&self) -> usize {
         self.n_int + usize::from(self.curv_k) + 2 * usize::from(self.hyst) + 1
     }

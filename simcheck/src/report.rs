@@ -124,12 +124,12 @@ pub fn extended_model(
         amplitudes: terms.iter().map(|t| t.0.clamp(-0.99, 0.99)).collect(),
         tau_s: terms.iter().map(|t| t.1).collect(),
     });
-    m.hysteresis = cfg.hysteresis.map(|(_, r)| Hysteresis {
+    m.hysteresis = cfg.hysteresis.map(|r| Hysteresis {
         weight: crate::diagnose::hysteresis_weight(ds, cfg, &d.final_theta),
         thresholds_n: vec![r],
     });
     if cfg.hysteresis.is_some() {
-        notes.push("hysteresis: the tool fits one play operator on the total force with a per-node amplitude; SIM.toml gets the median share of the load (weight) and the play half-width".into());
+        notes.push("hysteresis: the tool fits two play operators (half-widths r and 4r) on the total force with per-node amplitudes; SIM.toml gets the median share of the load (weight) and the play half-width".into());
     }
     m.thermal_drift = match &cfg.thermal {
         Some(Thermal::Recorded { alpha_per_k, tau_s }) => {

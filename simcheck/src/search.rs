@@ -21,7 +21,6 @@ pub enum Param {
     LnFloor,
     CreepC(usize),
     CreepLnTau(usize),
-    HystW,
     HystLnR,
     ThermAlpha,
     ThermLnTau,
@@ -38,8 +37,7 @@ impl Param {
             Param::LnFloor => c.r_floor_ohm.max(1e-9).ln(),
             Param::CreepC(j) => c.creep.map_or(0.0, |v| v[j].0),
             Param::CreepLnTau(j) => c.creep.map_or(0.0, |v| v[j].1.ln()),
-            Param::HystW => c.hysteresis.map_or(0.0, |v| v.0),
-            Param::HystLnR => c.hysteresis.map_or(0.0, |v| v.1.max(1e-9).ln()),
+            Param::HystLnR => c.hysteresis.map_or(0.0, |r| r.max(1e-9).ln()),
             Param::ThermAlpha => match &c.thermal {
                 Some(Thermal::Recorded { alpha_per_k, .. }) => alpha_per_k * 100.0,
                 _ => 0.0,
@@ -69,14 +67,9 @@ impl Param {
                     cr[j].1 = v.clamp(0.05f64.ln(), 5000f64.ln()).exp();
                 }
             }
-            Param::HystW => {
-                if let Some(h) = &mut c.hysteresis {
-                    h.0 = v.clamp(0.0, 0.95);
-                }
-            }
             Param::HystLnR => {
-                if let Some(h) = &mut c.hysteresis {
-                    h.1 = v.clamp(-12.0, 8.0).exp();
+                if let Some(r) = &mut c.hysteresis {
+                    *r = v.clamp(-12.0, 8.0).exp();
                 }
             }
             Param::ThermAlpha => {
@@ -99,32 +92,12 @@ impl Param {
     fn step(self) -> f64 {
         match self {
             Param::CreepC(_) => 0.03,
-            Param::HystW => 0.05,
             Param::ThermAlpha => 0.1,
             Param::CurvBeta => 0.5,
             Param::LnExponent => 0.05,
             _ => 0.5,
         }
     }
-}
-
-/// Sum of squared residuals (sim - rec, residual domain) over usable samples selected by `sel`.
-pub fn sse(ctx: &Context, ev: &Eval, sel: &dyn Fn(usize) -> bool) -> f64 {
-    let n = ctx.ds.n;
-    let mut s = 0.0;
-    for i in 0..ctx.ds.len() {
-        if !sel(i) {
-            continue;
-        }
-        for k in 0..n {
-            let idx = i * n + k;
-            if ctx.usable[idx] {
-                let r = ev.pred[idx] - ctx.dom_obs[idx];
-                s += r * r;
-            }
-        }
-    }
-    s
 }
 
 /// Minimises `f` with Nelder-Mead from `x0`; returns the best point and value.
@@ -361,7 +334,7 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
         EffectKind::Hysteresis => {
             for r in [0.01, 0.03, 0.1, 0.3] {
                 let mut s = cur.clone();
-                s.hysteresis = Some((0.0, r * fmax));
+                s.hysteresis = Some(r * fmax);
                 starts.push(s);
             }
             params.push(Param::HystLnR);
