@@ -8,7 +8,7 @@ mod common;
 
 use std::time::Duration;
 
-use common::{spawn_ready, unique_prefix, Proc};
+use common::{spawn_logger, spawn_ready, unique_prefix, Proc};
 use taxel_formats::{Record, RecordFileReader};
 
 const SIM_CAL: &str = include_str!("../calibrations/sim-default.toml");
@@ -77,12 +77,7 @@ fn calibrator_keeps_serving_through_bad_calibration_files() {
     let (cal_s, rec_s) = (cal.display().to_string(), rec.display().to_string());
     let limit = Duration::from_secs(20);
 
-    let mut logger = spawn_ready(
-        "logger",
-        &prefix,
-        &["logger", "record", "--sensor", "s0", "--out", &rec_s],
-        "logger ready",
-    );
+    let mut logger = spawn_logger(&prefix, "s0", &rec_s);
     let mut calibrator = spawn_ready(
         "calibrator",
         &prefix,

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Duration;
 
-use common::{run, spawn, spawn_ready, unique_prefix};
+use common::{run, spawn, spawn_logger, spawn_ready, unique_prefix};
 use taxel_formats::{Record, RecordFileReader, Recording};
 
 #[test]
@@ -97,12 +97,7 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
     // Live: one estimate from the start (as the protocol), replayed at 4x speed.
     let rec_file = dir.path().join("live.taxrec").display().to_string();
     let limit = Duration::from_secs(20);
-    let mut logger = spawn_ready(
-        "logger",
-        &prefix,
-        &["logger", "record", "--sensor", "s0", "--out", &rec_file],
-        "logger ready",
-    );
+    let mut logger = spawn_logger(&prefix, "s0", &rec_file);
     let mut calibrator = spawn_ready(
         "calibrator",
         &prefix,

@@ -6,7 +6,7 @@ mod common;
 
 use std::time::Duration;
 
-use common::{spawn, spawn_ready, unique_prefix};
+use common::{spawn, spawn_logger, spawn_ready, unique_prefix};
 use taxel_formats::{Record, RecordFileReader};
 use taxel_msgs::curvature_flags;
 
@@ -47,12 +47,7 @@ fn learned_estimates_track_the_mounting_and_hold_under_load() {
     );
     let (scen_s, rec_s) = (scenario.display().to_string(), rec.display().to_string());
     let limit = Duration::from_secs(20);
-    let mut logger = spawn_ready(
-        "logger",
-        &prefix,
-        &["logger", "record", "--sensor", "s0", "--out", &rec_s],
-        "logger ready",
-    );
+    let mut logger = spawn_logger(&prefix, "s0", &rec_s);
     let mut estimator = spawn_ready(
         "estimator",
         &prefix,

@@ -8,7 +8,7 @@ mod common;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::{run, spawn, spawn_ready, unique_prefix};
+use common::{run, spawn, spawn_logger, spawn_ready, unique_prefix};
 use taxel_formats::{Record, RecordFileReader};
 
 const SHIPPED: &str = concat!(
@@ -86,12 +86,7 @@ fn bad_model_files_are_refused_and_a_good_one_is_picked_up() {
     let model_s = model.display().to_string();
     let rec = dir.path().join("r.taxrec");
     let rec_s = rec.display().to_string();
-    let mut logger = spawn_ready(
-        "logger",
-        &prefix,
-        &["logger", "record", "--sensor", "s0", "--out", &rec_s],
-        "logger ready",
-    );
+    let mut logger = spawn_logger(&prefix, "s0", &rec_s);
     let mut estimator = spawn_ready(
         "estimator",
         &prefix,

@@ -177,3 +177,14 @@ pub fn shm_files(prefix: &str) -> Vec<String> {
         })
         .unwrap_or_default()
 }
+
+/// `taxel logger record --sensor SENSORS --out OUT`, ready.
+#[allow(dead_code)] // not every test binary records
+pub fn spawn_logger(prefix: &str, sensors: &str, out: &str) -> Proc {
+    spawn_ready(
+        "logger",
+        prefix,
+        &["logger", "record", "--sensor", sensors, "--out", out],
+        "logger ready",
+    )
+}
