@@ -432,7 +432,7 @@ const IN_FLIGHT_NS: u64 = 50_000_000;
 /// was never produced by the calibrator: lost, or lost during downtime when that sample is the
 /// first of a restarted calibrator (captured between [`IN_FLIGHT_NS`] before the kill and the
 /// replacement's first sample). A missing frame behind an unflagged sample was produced but
-/// not read in time by the probe itself (its 64-sample buffer overflowed): `probe_missed`.
+/// not read in time by the probe itself (its 256-sample buffer overflowed): `probe_missed`.
 fn count(ids: &[String], logs: &[SensorLog], sup: &Supervisor, kills: &[Kill]) -> Report {
     let mut r = Report::default();
     for (id, log) in ids.iter().zip(logs) {

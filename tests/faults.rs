@@ -264,7 +264,7 @@ fn a_sigkilled_logger_leaves_a_recording_readable_up_to_its_last_flush() {
     let mut publisher = spawn_ready(
         "publisher",
         &prefix,
-        // 200 Hz: the logger's 64-sample buffer covers 320 ms of scheduling stalls on a busy
+        // 200 Hz: the logger's 256-sample buffer covers 1.3 s of scheduling stalls on a busy
         // machine, so a gap in the file can only come from the kill.
         &["publisher", "--sensor", "s0", "sim", "--rate-hz", "200"],
         "publisher ready",
@@ -399,7 +399,7 @@ fn a_short_soak_with_random_kills_loses_nothing_outside_downtime() {
         "{json}"
     );
     // Nothing is lost outside downtime unless the machine starved the processes: then the probe
-    // (polling every 2 ms with a 64-sample buffer) overflows too, and the loss is still flagged.
+    // (polling every 2 ms with a 256-sample buffer) overflows too, and the loss is still flagged.
     if probe_missed == 0.0 && field("raw_probe_missed") == 0.0 {
         assert_eq!(lost, 0.0, "{json}");
     }

@@ -329,6 +329,16 @@ impl Stream {
             Stream::Curvature | Stream::Force => 1,
         }
     }
+    /// Samples each subscriber can hold before the oldest is overwritten: the time a reader may
+    /// be descheduled without losing anything. Raw and force streams run at up to kHz rates and
+    /// get 256 (256 ms at 1 kHz: a restarting neighbour loading its model stalls a reader for
+    /// 50-60 ms on a 2-core machine); curvature estimates come at a few Hz.
+    pub fn buffer(self) -> usize {
+        match self {
+            Stream::Raw | Stream::Force => 256,
+            Stream::Curvature | Stream::Reference => 64,
+        }
+    }
 }
 
 /// The service name of one stream of one sensor: `taxel/<sensor>/<stream>`.

@@ -29,8 +29,6 @@ fn err(what: impl Into<String>, e: impl Debug) -> IpcError {
     }
 }
 
-/// Samples a subscriber can hold before the oldest is overwritten.
-pub const SUBSCRIBER_BUFFER: usize = 64;
 /// Upper bound of subscribers per stream (control loop, logger, latency probes, monitors, ...).
 pub const MAX_SUBSCRIBERS: usize = 16;
 /// Publishers per stream: 2, so a restarted process can connect before the old one is cleaned.
@@ -86,7 +84,7 @@ impl Ipc {
             .service_builder(&sname)
             .publish_subscribe::<T>()
             .history_size(stream.history())
-            .subscriber_max_buffer_size(SUBSCRIBER_BUFFER)
+            .subscriber_max_buffer_size(stream.buffer())
             .enable_safe_overflow(true)
             .max_publishers(MAX_PUBLISHERS)
             .max_subscribers(MAX_SUBSCRIBERS)
@@ -139,7 +137,7 @@ impl Ipc {
         let name = service_name(sensor, stream);
         let subscriber = ps
             .subscriber_builder()
-            .buffer_size(SUBSCRIBER_BUFFER)
+            .buffer_size(stream.buffer())
             .create()
             .map_err(|e| err(format!("subscriber on {name}"), e))?;
         let listener = ev

@@ -234,7 +234,7 @@ fn run(a: &Args) -> Result<(), Failure> {
                 .runtime_err()?;
         }
         // Keys; the poll timeout paces the receive loop (5 ms, well inside the subscribers'
-        // 64-sample buffers at 1 kHz).
+        // 256-sample raw and force buffers at 1 kHz).
         if event::poll(Duration::from_millis(5))
             .context("terminal: read keys")
             .runtime_err()?
