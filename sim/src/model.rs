@@ -195,7 +195,8 @@ impl Default for Creep {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Hysteresis {
-    /// Share of the load that passes through the play operators, `w` (fraction).
+    /// Share of the load that passes through the play operators, `w` (fraction). Negative
+    /// weights turn the loop around (the loading branch above the unloading one).
     pub weight: f64,
     /// Half-widths of the play operators (N of local load).
     pub thresholds_n: Vec<f64>,
@@ -463,8 +464,8 @@ impl SensorModel {
         }
         if let Some(h) = &self.hysteresis {
             check(
-                h.weight.is_finite() && (0.0..=1.0).contains(&h.weight),
-                "hysteresis.weight must be in 0..=1",
+                h.weight.is_finite() && (-1.0..=1.0).contains(&h.weight),
+                "hysteresis.weight must be in -1..=1",
             )?;
             check(
                 !h.thresholds_n.is_empty() && h.thresholds_n.iter().all(|r| finite_nonneg(*r)),

@@ -10,10 +10,10 @@ use taxel_sim::SensorModel;
 
 use crate::data::Dataset;
 use crate::locate::{locate, node_stats, spans, Findings};
-use crate::model::{evaluate, Config, Context, EffectKind, Thermal};
+use crate::model::{evaluate, max_scan_skew, Config, Context, EffectKind, Thermal};
 use crate::search::{
     all_params, applicable, base_params, candidate, compare, cross_validate, fit_all, n_params,
-    tau_int, Cv, Verdict,
+    resid_stats, Cv, Verdict,
 };
 
 /// The best candidate of a round: effect, its cross-validation, verdict, starts and params.
@@ -117,6 +117,7 @@ fn effect_params(
             if let Some(r) = cfg.hysteresis {
                 p.insert("weight".into(), hysteresis_weight(ds, cfg, theta));
                 p.insert("threshold_n".into(), r);
+                p.insert("mix".into(), cfg.hyst_mix);
             }
         }
         EffectKind::ThermalDrift => match &cfg.thermal {
@@ -175,14 +176,17 @@ fn effect_params(
         EffectKind::ScanSkew => {
             if let Some(v) = cfg.scan_skew {
                 p.insert("dt_node_s".into(), v);
+                p.insert("row_settle_s".into(), cfg.scan_settle);
             }
         }
     }
     p
 }
 
-/// The play operator's share of the load, `w`, implied by the fitted per-node hysteresis
-/// amplitudes: `h_k = a_k n F^(n-1) w` at the mean loaded force (median over responsive nodes).
+/// The play operators' share of the load, `w`, implied by the fitted per-node hysteresis
+/// amplitudes: `h_k (1 + mix) = a_k n F^(n-1) w` at the mean loaded force (median over
+/// responsive nodes), for the simulator's mean of the two plays (half-widths `r` and `4r`).
+/// Negative when the loop runs the other way (the loading branch above the unloading one).
 pub fn hysteresis_weight(ds: &Dataset, cfg: &Config, theta: &[Vec<f64>]) -> f64 {
     let fmax = ds.max_force();
     let loaded: Vec<f64> = ds
@@ -195,11 +199,10 @@ pub fn hysteresis_weight(ds: &Dataset, cfg: &Config, theta: &[Vec<f64>]) -> f64 
     let amax = theta.iter().map(|t| t[t.len() - 1]).fold(0.0, f64::max);
     let mut w: Vec<f64> = theta
         .iter()
-        .filter(|t| t.len() >= 4 && t[t.len() - 1] > 0.2 * amax && amax > 0.0)
+        .filter(|t| t.len() >= 3 && t[t.len() - 1] > 0.2 * amax && amax > 0.0)
         .map(|t| {
             let a = t[t.len() - 1];
-            // Both plays' amplitudes, the wide one counted at its larger gap.
-            let h = t[t.len() - 3] + 4.0 * t[t.len() - 2];
+            let h = t[t.len() - 2] * (1.0 + cfg.hyst_mix);
             h / (a * cfg.exponent * fbar.max(1e-9).powf(cfg.exponent - 1.0))
         })
         .collect();
@@ -207,13 +210,13 @@ pub fn hysteresis_weight(ds: &Dataset, cfg: &Config, theta: &[Vec<f64>]) -> f64 
         return 0.0;
     }
     w.sort_by(f64::total_cmp);
-    w[w.len() / 2].clamp(0.0, 1.0)
+    w[w.len() / 2].clamp(-1.0, 1.0)
 }
 
 /// Physics an effect must show beyond a lower error: thermal drift inferred without a
 /// temperature column must also improve the no-load samples (temperature moves unloaded
-/// nodes; creep and hysteresis cannot).
-fn signature_check(ds: &Dataset, e: EffectKind, v: &mut Verdict) {
+/// nodes; creep and hysteresis cannot); hysteresis must be rate-independent.
+fn signature_check(ds: &Dataset, e: EffectKind, before: &Cv, after: &Cv, v: &mut Verdict) {
     // With a temperature column the correlation with the recorded temperature is the evidence;
     // without one, a slow common-mode factor could also mimic slow creep, so it must show on
     // unloaded samples too.
@@ -221,7 +224,87 @@ fn signature_check(ds: &Dataset, e: EffectKind, v: &mut Verdict) {
         v.accepted = false;
         v.keep = false;
     }
+    // Hysteresis must be rate-independent (a loop that grows with the loading rate is a lag).
+    if e == EffectKind::Hysteresis {
+        let [slow, fast] = ramp_betas(ds, before, after);
+        v.ramp_betas = Some([slow, fast]);
+        let ratio = fast / slow;
+        if !(slow > 0.0 && fast > 0.0 && (RATE_RATIO[0]..=RATE_RATIO[1]).contains(&ratio)) {
+            v.accepted = false;
+            v.keep = false;
+        }
+    }
 }
+
+/// How much of the current residual an added effect's contribution explains on slow and on
+/// fast ramps at the same force. Moving samples (|dF/dt| above 5 % of the peak force per second)
+/// are binned by force (8 bins up to the peak) and split at the median |dF/dt| of their bin, so
+/// both halves cover the same forces (a small press is often a slow one: without the binning a
+/// loop that depends on the level would look rate-dependent). With `r` the current held-out
+/// residual and `d` the change the effect makes to the prediction,
+/// `beta = sum d (-r) / sum d^2` per half (1: the effect's shape has the residual's size there).
+/// A rate-independent effect (hysteresis) has about the same beta on slow and fast ramps; a
+/// residual that grows with the rate (a lag: scan skew, settling) does not.
+pub fn ramp_betas(ds: &Dataset, before: &Cv, after: &Cv) -> [f64; 2] {
+    const BINS: usize = 8;
+    let (len, n) = (ds.len(), ds.n);
+    let fmax = ds.max_force().max(1e-12);
+    let rate: Vec<f64> = (0..len)
+        .map(|i| {
+            let (a, b) = (i.saturating_sub(2), (i + 2).min(len - 1));
+            let span = ds.t[b] - ds.t[a];
+            if span > 0.0 {
+                ((ds.force[b] - ds.force[a]) / span).abs()
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let bin = |f: f64| ((f.max(0.0) / fmax * BINS as f64) as usize).min(BINS - 1);
+    let mut by_bin: Vec<Vec<f64>> = vec![Vec::new(); BINS];
+    for (i, &ri) in rate.iter().enumerate() {
+        if ri > 0.05 * fmax {
+            by_bin[bin(ds.force[i])].push(ri);
+        }
+    }
+    if by_bin.iter().map(Vec::len).sum::<usize>() < 20 {
+        return [f64::NAN; 2];
+    }
+    let medians: Vec<f64> = by_bin
+        .iter_mut()
+        .map(|v| {
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() / 2).copied().unwrap_or(0.0)
+        })
+        .collect();
+    let mut num = [0.0f64; 2];
+    let mut den = [0.0f64; 2];
+    for (i, &ri) in rate.iter().enumerate() {
+        if ri <= 0.05 * fmax {
+            continue;
+        }
+        let class = usize::from(ri > medians[bin(ds.force[i])]);
+        for k in 0..n {
+            let idx = i * n + k;
+            let d = after.resid[idx] - before.resid[idx];
+            num[class] -= d * before.resid[idx];
+            den[class] += d * d;
+        }
+    }
+    [0, 1].map(|c| {
+        if den[c] > 0.0 {
+            num[c] / den[c]
+        } else {
+            f64::NAN
+        }
+    })
+}
+
+/// Hysteresis is rate-independent: the ratio of its betas on fast and on slow ramps must lie in
+/// this band. Below it the residual is larger on slow ramps, i.e. grows with the time spent
+/// loading (creep's footprint, or another effect's leftover); above it the residual grows with
+/// the rate (a lag: scan skew, settling).
+pub const RATE_RATIO: [f64; 2] = [0.9, 2.0];
 
 /// Block t statistic thermal drift needs on no-load samples.
 pub const MIN_REST_T: f64 = 2.0;
@@ -347,10 +430,9 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
                 &cur_cv,
                 &cv,
                 n_params(&ctx, e),
-                tau_int(&cv.resid, ds.len(), ds.n),
-                ds.len(),
+                resid_stats(&cv.resid, ds.len(), ds.n),
             );
-            signature_check(ds, e, &mut v);
+            signature_check(ds, e, &cur_cv, &cv, &mut v);
             trials.push(Trial {
                 round,
                 effect: e.name().to_string(),
@@ -391,10 +473,9 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
                 &cv_minus,
                 &cur_cv,
                 n_params(&ctx, e),
-                tau_int(&cur_cv.resid, ds.len(), ds.n),
-                ds.len(),
+                resid_stats(&cur_cv.resid, ds.len(), ds.n),
             );
-            signature_check(ds, e, &mut v);
+            signature_check(ds, e, &cv_minus, &cur_cv, &mut v);
             if !v.keep && effects.len() >= 2 {
                 cur = fit_all(
                     &ctx,
@@ -411,6 +492,14 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
         if !dropped {
             break;
         }
+    }
+    // The search may leave the skew or a creep time constant beyond the bound where it stops
+    // acting; report the value that acts.
+    cur.scan_skew = cur.scan_skew.map(|v| v.min(max_scan_skew(ds)));
+    if let Some(terms) = &mut cur.creep {
+        terms
+            .iter_mut()
+            .for_each(|t| t.1 = t.1.min(ctx.creep_tau_max));
     }
     let final_eval = evaluate(&ctx, &cur, &|_| true);
     let final_findings = locate(&ctx, &cur_cv.resid, &final_eval.pred);

@@ -70,10 +70,15 @@ pub struct Config {
     pub sat_in_base: bool,
     pub saturation: bool,
     /// Creep as two Prony terms `(c, tau_s)`: `L + sum c lowpass_tau(L)` (a fast and a slow
-    /// one; together they follow log-time creep over two decades).
+    /// one; together they follow log-time creep over two decades). The amplitudes are
+    /// non-negative (under a held force the sensor's deformation, and so its conductance, only
+    /// grows) and each `tau` is at most `Context::creep_tau_max`.
     pub creep: Option<[(f64, f64); 2]>,
     /// Hysteresis: half-width `r` (N) of the play operators; the amplitudes are per node.
     pub hysteresis: Option<f64>,
+    /// Hysteresis loop shape: the gap is `gap_r + mix gap_4r` (0: sharp corners; larger:
+    /// rounder loops). One global number, so each node pays for one amplitude only.
+    pub hyst_mix: f64,
     pub thermal: Option<Thermal>,
     /// Curvature sensitivity: `kappa_s` (1/m) with a curvature column, else `beta` (per unit
     /// log-baseline shift of the trial).
@@ -85,6 +90,9 @@ pub struct Config {
     pub crosstalk: Option<f64>,
     /// Scan skew: time between two node samples (s).
     pub scan_skew: Option<f64>,
+    /// Row-switch settling (s): the first node of each row lags its input by this much more
+    /// (part of scan_skew; 0 when absent).
+    pub scan_settle: f64,
 }
 
 impl Config {
@@ -96,12 +104,14 @@ impl Config {
             saturation: false,
             creep: None,
             hysteresis: None,
+            hyst_mix: 0.0,
             thermal: None,
             curv_sens: None,
             curv_linear: false,
             curv_base: false,
             crosstalk: None,
             scan_skew: None,
+            scan_settle: 0.0,
         }
     }
 
@@ -169,6 +179,10 @@ pub struct Context<'a> {
     /// Cross-validation block of each sample and its fold (0 or 1).
     pub block: Vec<usize>,
     pub n_blocks: usize,
+    /// Longest creep time constant the recording can show (s): three times its longest
+    /// continuous loaded span. Creep is seen while a load is held; a slower "creep" could not be
+    /// told from a drift, so it is not allowed to stand in for one.
+    pub creep_tau_max: f64,
 }
 
 impl<'a> Context<'a> {
@@ -211,6 +225,7 @@ impl<'a> Context<'a> {
             })
             .collect();
         let (block, n_blocks) = blocks(ds);
+        let creep_tau_max = 3.0 * longest_loaded_span(ds);
         Context {
             ds,
             g_obs,
@@ -219,6 +234,7 @@ impl<'a> Context<'a> {
             trial_shift,
             block,
             n_blocks,
+            creep_tau_max,
         }
     }
 
@@ -270,7 +286,13 @@ pub struct Eval {
 
 /// The load transform: creep, then the power law. (Hysteresis enters as its own per-node
 /// term, see [`play_gap`].)
-pub fn load_series(f: impl Iterator<Item = f64>, dt: &[f64], cfg: &Config, out: &mut Vec<f64>) {
+pub fn load_series(
+    f: impl Iterator<Item = f64>,
+    dt: &[f64],
+    cfg: &Config,
+    tau_max: f64,
+    out: &mut Vec<f64>,
+) {
     out.clear();
     let mut s = [0.0f64; 2];
     for (i, fi) in f.enumerate() {
@@ -279,13 +301,35 @@ pub fn load_series(f: impl Iterator<Item = f64>, dt: &[f64], cfg: &Config, out: 
             let base = l;
             for (st, (c, tau)) in s.iter_mut().zip(terms) {
                 if i > 0 {
-                    *st += (base - *st) * (1.0 - (-dt[i] / tau).exp());
+                    *st += (base - *st) * (1.0 - (-dt[i] / tau.min(tau_max)).exp());
                 }
                 l += c * *st;
             }
         }
         out.push(l.max(0.0).powf(cfg.exponent));
     }
+}
+
+/// The longest time (s) the force stays above 10 % of its peak without a break (at least one
+/// sample interval).
+pub fn longest_loaded_span(ds: &Dataset) -> f64 {
+    let limit = 0.1 * ds.max_force();
+    let (mut best, mut start): (f64, Option<f64>) = (0.0, None);
+    for (t, f) in ds.t.iter().zip(&ds.force) {
+        if *f > limit {
+            let s = *start.get_or_insert(*t);
+            best = best.max(t - s);
+        } else {
+            start = None;
+        }
+    }
+    best.max(ds.dt())
+}
+
+/// The largest possible scan skew (s per node): every node of a frame is read within one frame
+/// period, so the first and last node are at most one period apart.
+pub fn max_scan_skew(ds: &Dataset) -> f64 {
+    ds.dt() / (ds.n.max(2) - 1) as f64
 }
 
 /// Latent thermal knots for a recording: about one per 60 s (at least 4, at most 24).
@@ -323,8 +367,14 @@ pub fn evaluate_with(
     // Loads: one series for all nodes; scan skew shifts node k by k * dt_node to first order,
     // p_k(t) = p(t) + k dt_node dp/dt.
     let mut p_common = Vec::new();
-    load_series(ds.force.iter().copied(), &dt, cfg, &mut p_common);
-    let skew = cfg.scan_skew.unwrap_or(0.0);
+    load_series(
+        ds.force.iter().copied(),
+        &dt,
+        cfg,
+        ctx.creep_tau_max,
+        &mut p_common,
+    );
+    let skew = cfg.scan_skew.map_or(0.0, |v| v.min(max_scan_skew(ds)));
     let dp: Vec<f64> = if skew != 0.0 {
         (0..len)
             .map(|i| {
@@ -340,11 +390,20 @@ pub fn evaluate_with(
     } else {
         Vec::new()
     };
+    // Node k reads the force k * dt_node later in the frame; the first node of each row also
+    // settles after the row switch, a lag of `scan_settle`.
+    let settle = cfg.scan_settle;
+    let cols_n = ds.cols.max(1);
     let p_at = |k: usize, i: usize| -> f64 {
         if dp.is_empty() {
             p_common[i]
         } else {
-            (p_common[i] + skew * k as f64 * dp[i]).max(0.0)
+            let lag = if k.is_multiple_of(cols_n) {
+                settle
+            } else {
+                0.0
+            };
+            (p_common[i] + (skew * k as f64 - lag) * dp[i]).max(0.0)
         }
     };
     // Curvature sensitivity per sample.
@@ -428,17 +487,23 @@ pub fn evaluate_with(
     } else {
         Vec::new()
     };
-    // Hysteresis: two play operators (half-widths r and 4 r), each with per-node amplitudes,
-    // so the loop's shape (sharp or rounded corners) is fitted, not assumed.
-    // Each gap is centred on its mean at the same force level, so the term only carries the
-    // difference between branches (a loop), never a level-dependent offset the static law
+    // Hysteresis: two play operators (half-widths r and 4 r) mixed by one global weight, so
+    // the loop's shape (sharp or rounded corners) is fitted, not assumed; one amplitude per
+    // node. The gap is centred on its mean at the same force level, so the term only carries
+    // the difference between branches (a loop), never a level-dependent offset the static law
     // should carry.
-    let (hyst, hyst2): (Vec<f64>, Vec<f64>) = match cfg.hysteresis {
-        Some(r) => (
-            centre_by_level(&ds.force, play_gap(&ds.force, r)),
-            centre_by_level(&ds.force, play_gap(&ds.force, 4.0 * r)),
-        ),
-        None => (Vec::new(), Vec::new()),
+    let hyst: Vec<f64> = match cfg.hysteresis {
+        Some(r) => {
+            let narrow = play_gap(&ds.force, r);
+            let wide = play_gap(&ds.force, 4.0 * r);
+            let mixed = narrow
+                .iter()
+                .zip(&wide)
+                .map(|(a, b)| a + cfg.hyst_mix * b)
+                .collect();
+            centre_by_level(&ds.force, mixed)
+        }
+        None => Vec::new(),
     };
     let lay = Layout {
         n_int,
@@ -487,8 +552,7 @@ pub fn evaluate_with(
                         xrow[n_int] = curv_x[i];
                     }
                     if lay.hyst {
-                        xrow[pdim - 3] = sens[i] * hyst[i];
-                        xrow[pdim - 2] = sens[i] * hyst2[i];
+                        xrow[pdim - 2] = sens[i] * hyst[i];
                     }
                     xrow[pdim - 1] = sens[i] * p_at(k, i);
                     let (z, w) = if pass == 0 {
@@ -555,11 +619,7 @@ pub fn evaluate_with(
                     if wt == 0.0 {
                         continue;
                     }
-                    let hv = if lay.hyst {
-                        [sens[i] * hyst[i], sens[i] * hyst2[i]]
-                    } else {
-                        [0.0; 2]
-                    };
+                    let hv = if lay.hyst { sens[i] * hyst[i] } else { 0.0 };
                     let cx = if curv_k { curv_x[i] } else { 0.0 };
                     let q = zhat(&theta[k], &lay, cx, hv, sens[i] * p_at(k, i));
                     let phi = [(j, (1.0 - w) * q), (j + 1, w * q)];
@@ -606,11 +666,7 @@ pub fn evaluate_with(
             let mut srow = 0.0;
             for c in 0..cols {
                 let k = row * cols + c;
-                let hv = if lay.hyst {
-                    [sens[i] * hyst[i], sens[i] * hyst2[i]]
-                } else {
-                    [0.0; 2]
-                };
+                let hv = if lay.hyst { sens[i] * hyst[i] } else { 0.0 };
                 let cx = if curv_k { curv_x[i] } else { 0.0 };
                 let z = zhat(&theta[k], &lay, cx, hv, sens[i] * p_at(k, i));
                 let g = (m[i] * z).max(1e-12);
@@ -639,7 +695,7 @@ pub fn evaluate_with(
 }
 
 /// Where each per-node linear parameter sits in `theta`: the intercept, the curvature-baseline
-/// slope (on the curvature, or on the trial's no-load shift), the two hysteresis amplitudes, and
+/// slope (on the curvature, or on the trial's no-load shift), the hysteresis amplitude, and
 /// last the force gain.
 #[derive(Debug, Clone, Copy)]
 pub struct Layout {
@@ -650,17 +706,17 @@ pub struct Layout {
 
 impl Layout {
     pub fn dim(&self) -> usize {
-        self.n_int + usize::from(self.curv_k) + 2 * usize::from(self.hyst) + 1
+        self.n_int + usize::from(self.curv_k) + usize::from(self.hyst) + 1
     }
 }
 
-fn zhat(th: &[f64], lay: &Layout, cx: f64, hv: [f64; 2], sp: f64) -> f64 {
+fn zhat(th: &[f64], lay: &Layout, cx: f64, hv: f64, sp: f64) -> f64 {
     let mut z = th[0];
     if lay.curv_k {
         z += th[lay.n_int] * cx;
     }
     if lay.hyst {
-        z += th[th.len() - 3] * hv[0] + th[th.len() - 2] * hv[1];
+        z += th[th.len() - 2] * hv;
     }
     z + th[th.len() - 1] * sp
 }

@@ -3,13 +3,15 @@
 //! small normal equations of the per-node fits.
 
 /// Hysteresis as a play operator of half-width `r` (N) on the total force: `play_r(F) - F`,
-/// between -r (loading) and +r (unloading). Each node scales it by its own amplitude.
+/// between -r (loading) and +r (unloading). Each node scales it by its own amplitude. The
+/// operator starts on the unloading branch (`+r`): a recording starts with the sensor at rest,
+/// i.e. after its last unloading, in the same state as every later rest.
 pub fn play_gap(f: &[f64], r: f64) -> Vec<f64> {
     let mut z: Option<f64> = None;
     f.iter()
         .map(|&fi| {
             let l = fi.max(0.0);
-            let zz = z.map_or(l, |z: f64| z.clamp(l - r, l + r));
+            let zz = z.map_or(l + r, |z: f64| z.clamp(l - r, l + r));
             z = Some(zz);
             zz - l
         })

@@ -126,10 +126,10 @@ pub fn extended_model(
     });
     m.hysteresis = cfg.hysteresis.map(|r| Hysteresis {
         weight: crate::diagnose::hysteresis_weight(ds, cfg, &d.final_theta),
-        thresholds_n: vec![r],
+        thresholds_n: vec![r, 4.0 * r],
     });
     if cfg.hysteresis.is_some() {
-        notes.push("hysteresis: the tool fits two play operators (half-widths r and 4r) on the total force with per-node amplitudes; SIM.toml gets the median share of the load (weight) and the play half-width".into());
+        notes.push("hysteresis: the tool fits two play operators (half-widths r and 4r, mixed as gap_r + mix gap_4r) on the total force with one amplitude per node; SIM.toml gets both half-widths and the median share of the load (weight; negative when the loading branch lies above the unloading one)".into());
     }
     m.thermal_drift = match &cfg.thermal {
         Some(Thermal::Recorded { alpha_per_k, tau_s }) => {

@@ -22,12 +22,14 @@ pub enum Param {
     CreepC(usize),
     CreepLnTau(usize),
     HystLnR,
+    HystMix,
     ThermAlpha,
     ThermLnTau,
     CurvLnK,
     CurvBeta,
     LnRs,
     LnSkew,
+    LnSettle,
 }
 
 impl Param {
@@ -38,6 +40,7 @@ impl Param {
             Param::CreepC(j) => c.creep.map_or(0.0, |v| v[j].0),
             Param::CreepLnTau(j) => c.creep.map_or(0.0, |v| v[j].1.ln()),
             Param::HystLnR => c.hysteresis.map_or(0.0, |r| r.max(1e-9).ln()),
+            Param::HystMix => c.hyst_mix,
             Param::ThermAlpha => match &c.thermal {
                 Some(Thermal::Recorded { alpha_per_k, .. }) => alpha_per_k * 100.0,
                 _ => 0.0,
@@ -50,6 +53,7 @@ impl Param {
             Param::CurvBeta => c.curv_sens.unwrap_or(0.0),
             Param::LnRs => c.crosstalk.map_or(0.0, |v| v.max(1e-9).ln()),
             Param::LnSkew => c.scan_skew.map_or(0.0, |v| v.max(1e-9).ln()),
+            Param::LnSettle => c.scan_settle.max(1e-9).ln(),
         }
     }
 
@@ -59,7 +63,7 @@ impl Param {
             Param::LnFloor => c.r_floor_ohm = v.clamp(-30.0, 30.0).exp(),
             Param::CreepC(j) => {
                 if let Some(cr) = &mut c.creep {
-                    cr[j].0 = v.clamp(-0.5, 2.0);
+                    cr[j].0 = v.clamp(0.0, 2.0);
                 }
             }
             Param::CreepLnTau(j) => {
@@ -72,6 +76,7 @@ impl Param {
                     *r = v.clamp(-12.0, 8.0).exp();
                 }
             }
+            Param::HystMix => c.hyst_mix = v.clamp(-0.9, 4.0),
             Param::ThermAlpha => {
                 if let Some(Thermal::Recorded { alpha_per_k, .. }) = &mut c.thermal {
                     *alpha_per_k = (v / 100.0).clamp(-0.09, 0.09);
@@ -86,6 +91,7 @@ impl Param {
             Param::CurvBeta => c.curv_sens = Some(v.clamp(-50.0, 50.0)),
             Param::LnRs => c.crosstalk = Some(v.clamp(-20.0, 10.0).exp()),
             Param::LnSkew => c.scan_skew = Some(v.clamp(-20.0, -2.0).exp()),
+            Param::LnSettle => c.scan_settle = v.clamp(-20.0, -3.0).exp(),
         }
     }
 
@@ -333,11 +339,14 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
         }
         EffectKind::Hysteresis => {
             for r in [0.01, 0.03, 0.1, 0.3] {
-                let mut s = cur.clone();
-                s.hysteresis = Some(r * fmax);
-                starts.push(s);
+                for mix in [0.0, 1.0] {
+                    let mut s = cur.clone();
+                    s.hysteresis = Some(r * fmax);
+                    s.hyst_mix = mix;
+                    starts.push(s);
+                }
             }
-            params.push(Param::HystLnR);
+            params.extend([Param::HystLnR, Param::HystMix]);
         }
         EffectKind::ThermalDrift => {
             if ds.temp.is_some() {
@@ -409,11 +418,14 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
         }
         EffectKind::ScanSkew => {
             for dt in [1e-4, 4e-4, 1.5e-3] {
-                let mut s = cur.clone();
-                s.scan_skew = Some(dt);
-                starts.push(s);
+                for settle in [1e-5, 1e-3] {
+                    let mut s = cur.clone();
+                    s.scan_skew = Some(dt);
+                    s.scan_settle = settle;
+                    starts.push(s);
+                }
             }
-            params.push(Param::LnSkew);
+            params.extend([Param::LnSkew, Param::LnSettle]);
         }
     }
     params.dedup();
@@ -433,6 +445,7 @@ pub fn all_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
     }
     if cfg.hysteresis.is_some() {
         p.push(Param::HystLnR);
+        p.push(Param::HystMix);
     }
     if let Some(Thermal::Recorded { .. }) = cfg.thermal {
         p.extend([Param::ThermAlpha, Param::ThermLnTau]);
@@ -449,28 +462,51 @@ pub fn all_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
     }
     if cfg.scan_skew.is_some() {
         p.push(Param::LnSkew);
+        p.push(Param::LnSettle);
     }
     p
 }
 
-/// Number of parameters an effect adds (for the information criterion).
-pub fn n_params(ctx: &Context, e: EffectKind) -> usize {
+/// Parameters an effect adds (for the information criterion): global ones and per node.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ParamCount {
+    pub global: usize,
+    pub per_node: usize,
+}
+
+/// Parameters an effect adds.
+pub fn n_params(ctx: &Context, e: EffectKind) -> ParamCount {
     let ds = ctx.ds;
-    match e {
-        EffectKind::Creep => 4,
-        EffectKind::Hysteresis => 1 + 2 * ds.n,
+    let (global, per_node) = match e {
+        EffectKind::Creep => (4, 0),
+        EffectKind::Hysteresis => (2, 1),
         EffectKind::ThermalDrift => {
             if ds.temp.is_some() {
-                2
+                (2, 0)
             } else {
-                latent_knots(ds).len()
+                (latent_knots(ds).len(), 0)
             }
         }
-        EffectKind::CurvatureBaseline => ds.n,
-        EffectKind::CurvatureSensitivity
-        | EffectKind::Saturation
-        | EffectKind::Crosstalk
-        | EffectKind::ScanSkew => 1,
+        EffectKind::CurvatureBaseline => (0, 1),
+        EffectKind::CurvatureSensitivity | EffectKind::Saturation | EffectKind::Crosstalk => (1, 0),
+        EffectKind::ScanSkew => (2, 0),
+    };
+    ParamCount { global, per_node }
+}
+
+/// What the criterion needs to know about a held-out residual.
+#[derive(Debug, Clone, Copy)]
+pub struct ResidStats {
+    pub time_samples: usize,
+    /// Integrated autocorrelation time (samples), averaged over nodes.
+    pub tau_int: f64,
+}
+
+/// [`ResidStats`] of a held-out residual (`len` samples x `n` nodes).
+pub fn resid_stats(resid: &[f64], len: usize, n: usize) -> ResidStats {
+    ResidStats {
+        time_samples: len,
+        tau_int: tau_int(resid, len, n),
     }
 }
 
@@ -483,6 +519,8 @@ pub struct Cv {
     pub count: usize,
     /// SSE per block.
     pub block_sse: Vec<f64>,
+    /// SSE per node.
+    pub node_sse: Vec<f64>,
     /// SSE per block over no-load samples only (force below 2 % of the peak).
     pub rest_block_sse: Vec<f64>,
     /// The configuration fitted on each fold's training half.
@@ -531,15 +569,17 @@ pub fn cross_validate(ctx: &Context, starts: &[Config], params: &[Param], max_ev
         fits.push(cfg);
     }
     let mut block_sse = vec![0.0; ctx.n_blocks];
+    let mut node_sse = vec![0.0; n];
     let mut rest_block_sse = vec![0.0; ctx.n_blocks];
     let rest_limit = 0.02 * ds.max_force();
     let mut count = 0;
     for i in 0..ds.len() {
-        for k in 0..n {
+        for (k, node) in node_sse.iter_mut().enumerate() {
             let idx = i * n + k;
             if ctx.usable[idx] {
                 let r2 = resid[idx] * resid[idx];
                 block_sse[ctx.block[i]] += r2;
+                *node += r2;
                 if ds.force[i] <= rest_limit {
                     rest_block_sse[ctx.block[i]] += r2;
                 }
@@ -557,6 +597,7 @@ pub fn cross_validate(ctx: &Context, starts: &[Config], params: &[Param], max_ev
         sse,
         count,
         block_sse,
+        node_sse,
         rest_block_sse,
         fits: [a, b],
     }
@@ -583,6 +624,9 @@ pub struct Verdict {
     pub rest_block_t: f64,
     /// Weaker bar for keeping an effect already in the model (backward pass).
     pub keep: bool,
+    /// Hysteresis only: the size of its contribution relative to the residual on slow and on
+    /// fast ramps (see `diagnose::ramp_betas`).
+    pub ramp_betas: Option<[f64; 2]>,
 }
 
 /// Block t statistic of the SSE reduction from `a` to `b` per block.
@@ -599,13 +643,7 @@ pub fn block_t_of(a: &[f64], b: &[f64]) -> f64 {
     }
 }
 
-pub fn compare(
-    before: &Cv,
-    after: &Cv,
-    extra_params: usize,
-    tau_int: f64,
-    time_samples: usize,
-) -> Verdict {
+pub fn compare(before: &Cv, after: &Cv, k: ParamCount, stats: ResidStats) -> Verdict {
     let d: Vec<f64> = before
         .block_sse
         .iter()
@@ -620,10 +658,14 @@ pub fn compare(
     let improved = d.iter().filter(|x| **x > 0.0).count() as f64 / nb;
     // Sign test over blocks: robust where one block dominates the SSE (a start-up transient).
     let sign_z = (improved * nb - nb / 2.0) / (nb / 4.0).sqrt();
-    // Nodes share the stimulus and its errors: count time samples, not node-samples.
-    let n_eff = (time_samples as f64 / tau_int.max(1.0)).max(2.0);
+    // Nodes share the stimulus and its errors: count time samples, not node-samples. (Summing
+    // per-node evidence instead lets any flexible per-node term absorb what another effect's
+    // approximate form leaves behind.) Per-node parameters count once per node with data.
+    let n_eff = (stats.time_samples as f64 / stats.tau_int.max(1.0)).max(2.0);
     let ratio = (before.sse / after.sse.max(1e-300)).max(1e-300);
-    let ic_gain = n_eff * ratio.ln() - extra_params as f64 * n_eff.ln();
+    let n_nodes = after.node_sse.iter().filter(|v| **v > 0.0).count();
+    let n_params = k.global + k.per_node * n_nodes;
+    let ic_gain = n_eff * ratio.ln() - n_params as f64 * n_eff.ln();
     let rel_gain = 1.0 - after.sse / before.sse.max(1e-300);
     Verdict {
         rmse_before: before.rmse(),
@@ -640,6 +682,7 @@ pub fn compare(
         keep: rel_gain >= 0.5 * MIN_REL_GAIN
             && (block_t >= MIN_KEEP_T || sign_z >= MIN_KEEP_T)
             && ic_gain > 0.0,
+        ramp_betas: None,
     }
 }
 
