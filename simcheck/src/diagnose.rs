@@ -648,3 +648,101 @@ fn find_unexplained(
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::ReadoutMap;
+
+    /// One node, presses with independent levels and ramp durations (0.2-2 s) at 100 Hz.
+    fn presses() -> Dataset {
+        let mut t = Vec::new();
+        let mut force = Vec::new();
+        let mut now = 0.0;
+        for p in 0..40 {
+            let level = 2.0 + (p * 7 % 13) as f64;
+            let ramp = 0.2 + 1.8 * ((p * 5 % 11) as f64 / 10.0);
+            for (dur, from, to) in [
+                (1.0, 0.0, 0.0),
+                (ramp, 0.0, level),
+                (1.0, level, level),
+                (ramp, level, 0.0),
+            ] {
+                let steps = (dur * 100.0) as usize;
+                for s in 0..steps {
+                    t.push(now);
+                    force.push(from + (to - from) * s as f64 / steps as f64);
+                    now += 0.01;
+                }
+            }
+        }
+        let len = t.len();
+        Dataset {
+            path: "presses".into(),
+            rows: 1,
+            cols: 1,
+            n: 1,
+            t,
+            force,
+            kappa: None,
+            temp: None,
+            trial: vec![0; len],
+            n_trials: 1,
+            trial_recorded: false,
+            y: vec![0.0; len],
+            map: ReadoutMap::Resistance,
+        }
+    }
+
+    fn cv(resid: Vec<f64>) -> Cv {
+        let sse = resid.iter().map(|r| r * r).sum();
+        Cv {
+            count: resid.len(),
+            block_sse: vec![sse],
+            node_sse: vec![sse],
+            rest_block_sse: vec![0.0],
+            resid,
+            sse,
+            fits: [Config::base(1.0, 0.0), Config::base(1.0, 0.0)],
+        }
+    }
+
+    fn slope(ds: &Dataset) -> Vec<f64> {
+        let len = ds.len();
+        (0..len)
+            .map(|i| {
+                let (a, b) = (i.saturating_sub(1), (i + 1).min(len - 1));
+                (ds.force[b] - ds.force[a]) / (ds.t[b] - ds.t[a])
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_rate_independent_loop_passes_the_rate_check_and_a_lag_does_not() {
+        let ds = presses();
+        let dfdt = slope(&ds);
+        // The hysteresis shape the candidate adds: +-0.5 by loading direction.
+        let shape: Vec<f64> = dfdt.iter().map(|d| 0.5 * d.signum()).collect();
+        // A residual that is that loop: the candidate explains it on fast and slow ramps alike.
+        let loop_before: Vec<f64> = shape.iter().map(|h| -h).collect();
+        let [slow, fast] = ramp_betas(&ds, &cv(loop_before), &cv(vec![0.0; ds.len()]));
+        assert!(
+            (slow - 1.0).abs() < 1e-9 && (fast - 1.0).abs() < 1e-9,
+            "{slow} {fast}"
+        );
+        // A lag (residual proportional to dF/dt): the loop shape explains far more of it on
+        // fast ramps than on slow ones at the same force.
+        let lag_before: Vec<f64> = dfdt.iter().map(|d| -0.05 * d).collect();
+        let after: Vec<f64> = lag_before.iter().zip(&shape).map(|(r, h)| r + h).collect();
+        let [slow, fast] = ramp_betas(&ds, &cv(lag_before), &cv(after));
+        assert!(slow > 0.0 && fast / slow > RATE_RATIO[1], "{slow} {fast}");
+    }
+
+    #[test]
+    fn the_longest_loaded_span_bounds_creep() {
+        let ds = presses();
+        // The longest press: two 2 s ramps around a 1 s hold, above 10 % of the 14 N peak.
+        let span = crate::model::longest_loaded_span(&ds);
+        assert!(span > 4.0 && span < 5.0, "{span}");
+    }
+}
