@@ -18,9 +18,9 @@
 //!   before this bound). The loop also drains until no wake-up is pending.
 //!
 //! Statistics: for every bridged taxel stream (`taxel/<sensor>/<raw|curvature|force|reference>`)
-//! the bridge holds a subscriber on its own node and counts samples per direction (a sample
-//! whose header names the bridge's node came from a peer), frames lost from `seq` gaps, samples
-//! out of order, and ages.
+//! the bridge holds a subscriber (on a second node, see `run`) and counts samples per direction
+//! (a sample whose header names the link's node came from a peer), frames lost from `seq` gaps,
+//! samples out of order, and ages.
 
 use std::collections::BTreeSet;
 use std::fmt::Debug;
@@ -225,11 +225,10 @@ impl Watched {
     /// whose notifications wake the loop.
     fn refresh(
         &mut self,
-        link: &BridgeLink,
+        node: &Node<ipc::Service>,
         key: BTreeSet<(bool, String, ServiceHash)>,
         report: &mut Report,
     ) -> Vec<(String, Listener<ipc::Service>)> {
-        let node = link.node();
         let mut listeners = Vec::new();
         let mut tracked = Vec::new();
         let mut old = std::mem::take(&mut self.tracked);
@@ -363,6 +362,18 @@ pub fn run(cfg: &BridgeConfig, shutdown: &Shutdown) -> Result<Report, BridgeErro
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<ipc::Service>()
         .map_err(|e| ipc_err("creating the bridge node", e))?;
+    // The bridge's own subscribers and listeners live on a second node, so the link counts
+    // them as a local user: a stream the peers offer then stays a local service of this
+    // domain (exported by the link, with the settings it was created with) for as long as the
+    // bridge runs. Otherwise, when the last local consumer of a stream it created leaves, the
+    // link re-opens that service as a mirror with the default settings, and the open fails
+    // for a stream whose history differs from the default (raw: 0, force: 1).
+    let watch_node = NodeBuilder::new()
+        .name(&NodeName::new(&format!("{node_name}-watch")).map_err(|e| ipc_err("node name", e))?)
+        .config(&ice)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .map_err(|e| ipc_err("creating the bridge's watch node", e))?;
     let session = zenoh::open(zc)
         .wait()
         .map_err(|e| BridgeError::Zenoh(e.to_string().replace('\n', " ")))?;
@@ -473,7 +484,7 @@ pub fn run(cfg: &BridgeConfig, shutdown: &Shutdown) -> Result<Report, BridgeErro
             }
         };
         // The waitset and its guards are gone: the listeners can be replaced.
-        listeners = watched.refresh(&link, changed, &mut report);
+        listeners = watched.refresh(&watch_node, changed, &mut report);
         for (name, _) in &listeners {
             tracing::debug!("waking on {name}");
         }

@@ -132,6 +132,19 @@ impl Drop for Proc {
     }
 }
 
+/// Removes what dead nodes of the test's prefixes left and the prefixes' management segments,
+/// also when an assertion failed (declared first, so it drops after the children are killed).
+struct Cleanup(Vec<String>);
+
+impl Drop for Cleanup {
+    fn drop(&mut self) {
+        for p in &self.0 {
+            let _ = taxel_runtime::ipc::clean_dead_nodes(p);
+            let _ = taxel_runtime::ipc::release_prefix(p);
+        }
+    }
+}
+
 fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
@@ -225,6 +238,7 @@ fn receiver(
 fn frames_cross_between_two_domains_in_order_without_echo() {
     let tag = format!("tbr{}", std::process::id());
     let (pa, pb) = (format!("{tag}a_"), format!("{tag}b_"));
+    let _cleanup = Cleanup(vec![pa.clone(), pb.clone()]);
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let allow = "taxel/glove0/*";
 
@@ -451,10 +465,17 @@ fn frames_cross_between_two_domains_in_order_without_echo() {
     assert!(samples(&in_b) + MAX_LOST >= FRAMES, "{in_b}");
     assert!(in_b.contains("out of order 0"), "{in_b}");
 
-    for p in [&pa, &pb] {
-        let _ = taxel_runtime::ipc::clean_dead_nodes(p);
-        let _ = taxel_runtime::ipc::release_prefix(p);
-    }
+    // Both bridges stopped cleanly: once the prefixes are released nothing is left in /dev/shm.
+    drop(_cleanup);
+    let left: Vec<String> = std::fs::read_dir("/dev/shm")
+        .map(|d| {
+            d.filter_map(|e| e.ok())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.starts_with(&pa) || n.starts_with(&pb))
+                .collect()
+        })
+        .unwrap_or_default();
+    assert!(left.is_empty(), "left in /dev/shm: {left:?}");
 }
 
 /// Bad arguments end with exit 2 and one line naming the flag; a taken port with exit 1.
@@ -508,6 +529,7 @@ fn bad_arguments_are_refused_in_one_line() {
     let holder = TcpListener::bind("127.0.0.1:0").expect("bind");
     let port = holder.local_addr().expect("addr").port();
     let prefix = format!("tbr{}x_", std::process::id());
+    let _cleanup = Cleanup(vec![prefix.clone()]);
     let out = Command::new(BRIDGE)
         .args(["--prefix", &prefix, "--allow", "taxel/*", "--listen"])
         .arg(format!("tcp/127.0.0.1:{port}"))
@@ -518,5 +540,4 @@ fn bad_arguments_are_refused_in_one_line() {
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(err.contains("zenoh"), "{err}");
-    let _ = taxel_runtime::ipc::release_prefix(&prefix);
 }
