@@ -441,8 +441,9 @@ pub fn run(cfg: &BridgeConfig, shutdown: &Shutdown) -> Result<Report, BridgeErro
                 .map_err(|e| ipc_err("waitset", e))?;
                 // Work until no wake-up is pending: a wake-up that arrives while the previous
                 // one is drained can leave the wake listener marked notified with nothing to
-                // read, so the waitset alone would not see it.
-                loop {
+                // read, so the waitset alone would not see it. Bounded, so discovery and the
+                // shutdown flag are still seen under a flood.
+                for _ in 0..64 {
                     let mut pending = wake.try_wait(|_| {}).unwrap_or(0);
                     for (_, l) in &listeners {
                         pending += l.try_wait(|_| {}).unwrap_or(0);
