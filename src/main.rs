@@ -52,6 +52,9 @@ enum Cmd {
     /// Live terminal monitor (works over SSH): heatmap, curvature, forces, rates, ages,
     /// drops and process health per sensor.
     Monitor(taxel_consumers::monitor::Args),
+    /// Relay chosen services to another host over Zenoh for observation and logging
+    /// (`--allow 'taxel/glove0/*'`); the control path stays local.
+    Bridge(taxel_bridge::cli::Args),
     /// Latency of the pipeline against raw iceoryx2 and sockets, in one run.
     Bench(bench::BenchArgs),
     /// A socket peer of `taxel bench` (internal).
@@ -72,6 +75,7 @@ fn main() -> ExitCode {
         Cmd::Logger(a) => taxel_consumers::logger::main(a),
         Cmd::Latency(a) => taxel_consumers::latency::main(a),
         Cmd::Monitor(a) => taxel_consumers::monitor::main(a),
+        Cmd::Bridge(a) => taxel_bridge::cli::main(a),
         Cmd::Bench(a) => bench::main(a),
         Cmd::BenchPeer(a) => match bench::peers::run(&a) {
             Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,103 @@
+//! `taxel bridge` / `taxel-bridge`: arguments, validation (exit 2 with one line naming the
+//! flag), tracing, shutdown, and the final report on stdout.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::Parser;
+use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
+use taxel_runtime::Shutdown;
+
+use crate::config::BridgeConfig;
+use crate::run::{run, BridgeError};
+
+/// Relay chosen iceoryx2 services to other hosts over Zenoh, for observation and logging (not
+/// for control: keep the control loop on the sensor's host). Run one on each host with the
+/// same --allow globs; one --listen, the others --connect to it.
+#[derive(Debug, Parser)]
+#[command(name = "taxel-bridge", version)]
+pub struct Args {
+    #[command(flatten)]
+    pub common: CommonArgs,
+    /// Service-name glob to bridge, repeatable: `*` matches any run of characters (also `/`),
+    /// `?` one character. E.g. 'taxel/glove0/*' or 'taxel/*/force'.
+    #[arg(long)]
+    pub allow: Vec<String>,
+    /// Zenoh endpoint to listen on, repeatable, e.g. tcp/0.0.0.0:7447.
+    #[arg(long)]
+    pub listen: Vec<String>,
+    /// Zenoh endpoint of a peer bridge to connect to, repeatable, e.g. tcp/glove-pc:7447.
+    #[arg(long)]
+    pub connect: Vec<String>,
+    /// Zenoh configuration file (JSON5) to start from (e.g. for access control); --listen and
+    /// --connect are added to it.
+    #[arg(long)]
+    pub zenoh_config: Option<PathBuf>,
+    /// Log each stream's counts, losses and ages this often (seconds).
+    #[arg(long, default_value_t = 5.0)]
+    pub report_s: f64,
+    /// Stop after this many seconds (default: until Ctrl-C).
+    #[arg(long)]
+    pub seconds: Option<f64>,
+}
+
+fn seconds(flag: &'static str, s: f64) -> Result<Duration, Failure> {
+    if s.is_finite() && s > 0.0 {
+        Ok(Duration::from_secs_f64(s))
+    } else {
+        Err(Failure::config(anyhow::anyhow!(
+            "--{flag} {s}: must be a positive number of seconds"
+        )))
+    }
+}
+
+impl Args {
+    pub fn config(&self) -> Result<BridgeConfig, Failure> {
+        let cfg = BridgeConfig {
+            prefix: self.common.prefix.clone(),
+            allow: self.allow.clone(),
+            listen: self.listen.clone(),
+            connect: self.connect.clone(),
+            zenoh_file: self.zenoh_config.clone(),
+            report_every: seconds("report-s", self.report_s)?,
+            run_for: self.seconds.map(|s| seconds("seconds", s)).transpose()?,
+        };
+        cfg.validate().config_err()?;
+        Ok(cfg)
+    }
+}
+
+pub fn main(args: Args) -> ExitCode {
+    // Zenoh logs its own start-up at info; keep it to warnings unless asked for.
+    let filter = if args.common.log.contains("zenoh") {
+        args.common.log.clone()
+    } else {
+        format!(
+            "{},zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn",
+            args.common.log
+        )
+    };
+    init_tracing(&filter);
+    exit_code("taxel-bridge", main_inner(&args))
+}
+
+fn main_inner(args: &Args) -> Result<(), Failure> {
+    let cfg = args.config()?;
+    tracing::info!("effective configuration: {cfg:?}");
+    let shutdown = Shutdown::install().runtime_err()?;
+    let report = match run(&cfg, &shutdown) {
+        Ok(r) => r,
+        Err(e @ BridgeError::Config(_)) => return Err(Failure::config(e)),
+        Err(e) => return Err(Failure::runtime(e)),
+    };
+    println!(
+        "taxel bridge: {:.1} s, {} stream(s) bridged",
+        report.seconds,
+        report.streams.len()
+    );
+    for l in report.lines() {
+        println!("  {l}");
+    }
+    Ok(())
+}

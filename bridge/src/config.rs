@@ -1,0 +1,283 @@
+//! The bridge's configuration: which services cross (allow globs), where Zenoh listens and
+//! connects, and the iceoryx2 configuration of the local domain with taxel's stream QoS as the
+//! defaults (the link creates the mirror of a remote service with the local defaults, and taxel
+//! processes then open it with their own settings, which must fit).
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use iceoryx2::config::Config;
+use iceoryx2_link_backend::AllowList;
+use taxel_msgs::Stream;
+use taxel_runtime::ipc::{MAX_NODES, MAX_PUBLISHERS, MAX_SUBSCRIBERS, SUBSCRIBER_BUFFER};
+
+/// Why a configuration was refused (one line, naming the offending value).
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("--allow: give at least one service glob, e.g. --allow 'taxel/glove0/*'")]
+    NoAllow,
+    #[error("--allow {0:?}: {1}")]
+    BadAllow(String, &'static str),
+    #[error("--{0} {1:?}: {2}")]
+    BadEndpoint(&'static str, String, String),
+    #[error("give --listen, --connect or --zenoh-config: without them the bridge reaches nobody")]
+    NoEndpoint,
+    #[error("--zenoh-config {0}: {1}")]
+    ZenohFile(PathBuf, String),
+    #[error("zenoh configuration {0}: {1}")]
+    Zenoh(String, String),
+    #[error("--prefix {0:?}: {1}")]
+    Prefix(String, String),
+    #[error("--{0} {1}: must be a positive number of seconds")]
+    Seconds(&'static str, f64),
+}
+
+/// A validated bridge configuration.
+#[derive(Debug, Clone)]
+pub struct BridgeConfig {
+    /// iceoryx2 service prefix of the local domain (`--prefix`, `TAXEL_PREFIX`).
+    pub prefix: String,
+    /// Service-name globs (`*` any run of characters including `/`, `?` one character).
+    pub allow: Vec<String>,
+    /// Zenoh endpoints to listen on (`tcp/ADDR:PORT`).
+    pub listen: Vec<String>,
+    /// Zenoh endpoints to connect to.
+    pub connect: Vec<String>,
+    /// A Zenoh configuration file (JSON5) to start from; `listen`/`connect` are added to it.
+    pub zenoh_file: Option<PathBuf>,
+    /// How often the statistics are logged.
+    pub report_every: Duration,
+    /// Stop after this long (None: until shutdown).
+    pub run_for: Option<Duration>,
+}
+
+/// How often the link looks for new and vanished services on both sides.
+pub const DISCOVERY_EVERY: Duration = Duration::from_millis(100);
+
+/// Characters a service-name glob may hold: those of taxel service names, `*` and `?`.
+fn glob_char_ok(c: char) -> bool {
+    c.is_ascii_alphanumeric() || matches!(c, '/' | '_' | '-' | '.' | '*' | '?')
+}
+
+impl BridgeConfig {
+    /// Checks every field; the error names the flag and the value.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if self.allow.is_empty() {
+            return Err(ConfigError::NoAllow);
+        }
+        for a in &self.allow {
+            if a.is_empty() {
+                return Err(ConfigError::BadAllow(a.clone(), "empty glob"));
+            }
+            if !a.chars().all(glob_char_ok) {
+                return Err(ConfigError::BadAllow(
+                    a.clone(),
+                    "use the characters of service names (A-Z a-z 0-9 / _ - .) and the wildcards * ?",
+                ));
+            }
+        }
+        for (flag, list) in [("listen", &self.listen), ("connect", &self.connect)] {
+            for e in list {
+                check_endpoint(e).map_err(|why| ConfigError::BadEndpoint(flag, e.clone(), why))?;
+            }
+        }
+        if self.listen.is_empty() && self.connect.is_empty() && self.zenoh_file.is_none() {
+            return Err(ConfigError::NoEndpoint);
+        }
+        taxel_runtime::ipc::config(&self.prefix)
+            .map_err(|e| ConfigError::Prefix(self.prefix.clone(), e.detail))?;
+        let s = self.report_every.as_secs_f64();
+        if s <= 0.0 {
+            return Err(ConfigError::Seconds("report-s", s));
+        }
+        Ok(())
+    }
+
+    /// The allow list the link filters service names with.
+    pub fn allow_list(&self) -> AllowList {
+        AllowList::new(&self.allow)
+    }
+
+    /// Whether a service name passes the allow list.
+    pub fn allows(&self, name: &str) -> bool {
+        self.allow_list().admits(name)
+    }
+
+    /// The iceoryx2 configuration of the local domain, with taxel's stream QoS as the defaults.
+    pub fn iceoryx2(&self) -> Result<Config, ConfigError> {
+        let mut c = taxel_runtime::ipc::config(&self.prefix)
+            .map_err(|e| ConfigError::Prefix(self.prefix.clone(), e.detail))?;
+        stream_defaults(&mut c);
+        Ok(c)
+    }
+
+    /// The Zenoh configuration: the file (or Zenoh's defaults), peer mode, multicast scouting
+    /// off (peers are named explicitly), the given endpoints.
+    pub fn zenoh(&self) -> Result<zenoh::Config, ConfigError> {
+        let mut c = match &self.zenoh_file {
+            Some(p) => zenoh::Config::from_file(p)
+                .map_err(|e| ConfigError::ZenohFile(p.clone(), one_line(&e.to_string())))?,
+            None => {
+                let mut c = zenoh::Config::default();
+                set(&mut c, "mode", "\"peer\"")?;
+                set(&mut c, "scouting/multicast/enabled", "false")?;
+                // Without this a peer listens on every interface on a random port.
+                set(&mut c, "listen/endpoints", "[]")?;
+                c
+            }
+        };
+        // Zenoh queues 2 batches (~30 raw frames) per priority and drops a message it cannot
+        // queue within 1 ms: a scheduling hiccup of a few tens of ms on a loaded host then
+        // loses frames. 16 batches (~240 raw frames, 1 MiB) and 20 ms ride such hiccups out.
+        set(&mut c, "transport/link/tx/queue/size/data", "16")?;
+        set(
+            &mut c,
+            "transport/link/tx/queue/congestion_control/drop/wait_before_drop",
+            "20000",
+        )?;
+        if !self.listen.is_empty() {
+            set(&mut c, "listen/endpoints", &json_list(&self.listen))?;
+        }
+        if !self.connect.is_empty() {
+            set(&mut c, "connect/endpoints", &json_list(&self.connect))?;
+        }
+        Ok(c)
+    }
+}
+
+fn set(c: &mut zenoh::Config, key: &str, value: &str) -> Result<(), ConfigError> {
+    c.insert_json5(key, value)
+        .map_err(|e| ConfigError::Zenoh(format!("{key} = {value}"), one_line(&e.to_string())))
+}
+
+fn json_list(items: &[String]) -> String {
+    let quoted: Vec<String> = items
+        .iter()
+        .map(|s| serde_json::Value::String(s.clone()).to_string())
+        .collect();
+    format!("[{}]", quoted.join(","))
+}
+
+fn one_line(s: &str) -> String {
+    s.replace('\n', " ")
+}
+
+/// Zenoh is built with TCP only: `tcp/HOST:PORT`, HOST a name, an IPv4 address or `[IPv6]`.
+fn check_endpoint(e: &str) -> Result<(), String> {
+    let Some(addr) = e.strip_prefix("tcp/") else {
+        return Err(
+            "use tcp/HOST:PORT (the bridge is built with Zenoh's TCP transport only)".into(),
+        );
+    };
+    let addr = addr.split('#').next().unwrap_or(addr);
+    let Some((host, port)) = addr.rsplit_once(':') else {
+        return Err("missing :PORT".into());
+    };
+    if host.is_empty() {
+        return Err("missing HOST".into());
+    }
+    port.parse::<u16>()
+        .map_err(|_| format!("port {port:?} is not a number from 0 to 65535"))?;
+    Ok(())
+}
+
+/// Makes taxel's stream settings (runtime/src/ipc.rs) the defaults, so a mirror the link
+/// creates accepts taxel processes opening it: buffer, subscribers, publishers, nodes, safe
+/// overflow, and the largest history of any stream (a subscriber may ask for less).
+pub fn stream_defaults(c: &mut Config) {
+    let ps = &mut c.defaults.publish_subscribe;
+    ps.subscriber_max_buffer_size = SUBSCRIBER_BUFFER;
+    ps.max_subscribers = MAX_SUBSCRIBERS;
+    ps.max_publishers = MAX_PUBLISHERS;
+    ps.max_nodes = MAX_NODES;
+    ps.enable_safe_overflow = true;
+    ps.publisher_history_size = Stream::ALL.iter().map(|s| s.history()).max().unwrap_or(0);
+    let ev = &mut c.defaults.event;
+    ev.max_nodes = MAX_NODES;
+    ev.max_listeners = MAX_SUBSCRIBERS;
+    ev.max_notifiers = MAX_PUBLISHERS * 2;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg() -> BridgeConfig {
+        BridgeConfig {
+            prefix: "taxel_".into(),
+            allow: vec!["taxel/glove0/*".into()],
+            listen: vec!["tcp/127.0.0.1:7447".into()],
+            connect: vec![],
+            zenoh_file: None,
+            report_every: Duration::from_secs(5),
+            run_for: None,
+        }
+    }
+
+    #[test]
+    fn globs_match_taxel_streams() {
+        let c = cfg();
+        assert!(c.allows("taxel/glove0/raw"));
+        assert!(c.allows("taxel/glove0/force"));
+        assert!(!c.allows("taxel/glove1/raw"));
+        let mut c = cfg();
+        c.allow = vec!["taxel/*/raw".into(), "taxel/s?/force".into()];
+        assert!(c.allows("taxel/glove1/raw"));
+        assert!(c.allows("taxel/s1/force"));
+        assert!(!c.allows("taxel/s10/force"));
+    }
+
+    #[test]
+    fn bad_values_are_refused_with_the_flag_named() {
+        let mut c = cfg();
+        c.allow.clear();
+        assert!(c
+            .validate()
+            .expect_err("refused")
+            .to_string()
+            .contains("--allow"));
+        let mut c = cfg();
+        c.allow = vec!["taxel/glove 0/*".into()];
+        assert!(c
+            .validate()
+            .expect_err("refused")
+            .to_string()
+            .contains("--allow"));
+        for bad in [
+            "udp/1.2.3.4:5",
+            "tcp/1.2.3.4",
+            "tcp/:7447",
+            "tcp/h:99999",
+            "7447",
+        ] {
+            let mut c = cfg();
+            c.listen = vec![bad.into()];
+            let e = c.validate().expect_err("refused").to_string();
+            assert!(e.starts_with("--listen"), "{bad}: {e}");
+        }
+        let mut c = cfg();
+        c.listen.clear();
+        assert!(matches!(c.validate(), Err(ConfigError::NoEndpoint)));
+        let mut c = cfg();
+        c.prefix = "a/b".into();
+        assert!(c
+            .validate()
+            .expect_err("refused")
+            .to_string()
+            .contains("--prefix"));
+        let mut c = cfg();
+        c.connect = vec!["tcp/[::1]:7447".into(), "tcp/glove-pc.local:7447".into()];
+        c.validate().expect("valid endpoints");
+        c.zenoh().expect("zenoh accepts the endpoints");
+    }
+
+    #[test]
+    fn mirrors_get_the_stream_qos() {
+        let c = cfg().iceoryx2().expect("config");
+        let ps = &c.defaults.publish_subscribe;
+        assert_eq!(ps.subscriber_max_buffer_size, SUBSCRIBER_BUFFER);
+        assert_eq!(ps.max_subscribers, MAX_SUBSCRIBERS);
+        assert_eq!(ps.publisher_history_size, 1);
+        assert!(ps.enable_safe_overflow);
+    }
+}
