@@ -9,7 +9,7 @@ use std::time::Duration;
 use iceoryx2::config::Config;
 use iceoryx2_link_backend::AllowList;
 use taxel_msgs::Stream;
-use taxel_runtime::ipc::{MAX_NODES, MAX_PUBLISHERS, MAX_SUBSCRIBERS, SUBSCRIBER_BUFFER};
+use taxel_runtime::ipc::{MAX_NODES, MAX_PUBLISHERS, MAX_SUBSCRIBERS};
 
 /// Why a configuration was refused (one line, naming the offending value).
 #[derive(Debug, thiserror::Error)]
@@ -183,10 +183,10 @@ fn check_endpoint(e: &str) -> Result<(), String> {
 
 /// Makes taxel's stream settings (runtime/src/ipc.rs) the defaults, so a mirror the link
 /// creates accepts taxel processes opening it: buffer, subscribers, publishers, nodes, safe
-/// overflow, and the largest history of any stream (a subscriber may ask for less).
+/// overflow, and the largest buffer and history of any stream (a process may ask for less).
 pub fn stream_defaults(c: &mut Config) {
     let ps = &mut c.defaults.publish_subscribe;
-    ps.subscriber_max_buffer_size = SUBSCRIBER_BUFFER;
+    ps.subscriber_max_buffer_size = max_stream_buffer();
     ps.max_subscribers = MAX_SUBSCRIBERS;
     ps.max_publishers = MAX_PUBLISHERS;
     ps.max_nodes = MAX_NODES;
@@ -196,6 +196,11 @@ pub fn stream_defaults(c: &mut Config) {
     ev.max_nodes = MAX_NODES;
     ev.max_listeners = MAX_SUBSCRIBERS;
     ev.max_notifiers = MAX_PUBLISHERS * 2;
+}
+
+/// The largest subscriber buffer of any stream (`Stream::buffer`).
+fn max_stream_buffer() -> usize {
+    Stream::ALL.iter().map(|s| s.buffer()).max().unwrap_or(1)
 }
 
 #[cfg(test)]
@@ -275,7 +280,7 @@ mod tests {
     fn mirrors_get_the_stream_qos() {
         let c = cfg().iceoryx2().expect("config");
         let ps = &c.defaults.publish_subscribe;
-        assert_eq!(ps.subscriber_max_buffer_size, SUBSCRIBER_BUFFER);
+        assert_eq!(ps.subscriber_max_buffer_size, Stream::Raw.buffer());
         assert_eq!(ps.max_subscribers, MAX_SUBSCRIBERS);
         assert_eq!(ps.publisher_history_size, 1);
         assert!(ps.enable_safe_overflow);

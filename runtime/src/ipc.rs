@@ -31,8 +31,9 @@ fn err(what: impl Into<String>, e: impl Debug) -> IpcError {
 
 /// Upper bound of subscribers per stream (control loop, logger, latency probes, monitors, ...).
 pub const MAX_SUBSCRIBERS: usize = 16;
-/// Publishers per stream: 2, so a restarted process can connect before the old one is cleaned.
-pub const MAX_PUBLISHERS: usize = 2;
+/// Publishers per stream: the source, a restarted source connecting before the old one is
+/// cleaned, and a `taxel bridge` mirroring the stream from another domain.
+pub const MAX_PUBLISHERS: usize = 3;
 /// Nodes per service.
 pub const MAX_NODES: usize = 32;
 
