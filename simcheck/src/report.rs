@@ -158,6 +158,9 @@ pub fn extended_model(
         vos_max_v: 0.0,
     });
     m.scan_skew = cfg.scan_skew.map(|dt| ScanSkew { dt_node_s: dt });
+    if cfg.scan_skew.is_some() && cfg.scan_settle > 1e-5 {
+        notes.push(format!("scan_skew: the row-switch settling ({:.2} ms) is not part of taxel-sim's scan skew; SIM.toml carries dt_node_s only", 1e3 * cfg.scan_settle));
+    }
     if cfg.scan_skew.is_some() {
         notes.push("scan_skew acts in scenario runs; re-simulating a recording (driven mode) cannot look ahead in the recorded force, so the check below runs without it".into());
     }
