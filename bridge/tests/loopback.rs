@@ -5,11 +5,10 @@
 //! (no echo from B). Loss and latency (capture to receipt in B, one clock) are printed, and the
 //! bridges' own reports are checked.
 
-use std::io::{BufRead, BufReader};
 use std::net::TcpListener;
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::Command;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc::{channel, Receiver};
+use std::sync::mpsc::channel;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -18,6 +17,7 @@ use iceoryx2::service::messaging_pattern::MessagingPattern;
 use taxel_msgs::{sensor_id_bytes, RawFrame, Stream};
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::now_ns;
+use taxel_testkit::Proc;
 
 const BRIDGE: &str = env!("CARGO_BIN_EXE_taxel-bridge");
 
@@ -29,107 +29,11 @@ const PERIOD: Duration = Duration::from_millis(1);
 /// a loss means a bridge stalled for more than 64 ms. Every loss is reported.
 const MAX_LOST: u64 = FRAMES / 200;
 
-struct Proc {
-    name: String,
-    child: Child,
-    lines: Receiver<String>,
-    seen: Vec<String>,
-}
-
+/// Starts `taxel-bridge args...` (outside any TAXEL_PREFIX of the environment).
 fn spawn(name: &str, args: &[&str]) -> Proc {
-    let mut child = Command::new(BRIDGE)
-        .args(args)
-        .env("RUST_LOG", "info")
-        .env("NO_COLOR", "1")
-        .env_remove("TAXEL_PREFIX")
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("spawn taxel-bridge");
-    let (tx, rx) = channel();
-    let tx2 = tx.clone();
-    let err = child.stderr.take().expect("stderr");
-    let out = child.stdout.take().expect("stdout");
-    std::thread::spawn(move || {
-        for l in BufReader::new(err).lines().map_while(Result::ok) {
-            let _ = tx.send(l);
-        }
-    });
-    std::thread::spawn(move || {
-        for l in BufReader::new(out).lines().map_while(Result::ok) {
-            let _ = tx2.send(l);
-        }
-    });
-    Proc {
-        name: name.into(),
-        child,
-        lines: rx,
-        seen: Vec::new(),
-    }
-}
-
-impl Proc {
-    fn pump(&mut self) {
-        while let Ok(l) = self.lines.try_recv() {
-            self.seen.push(l);
-        }
-    }
-
-    fn wait_for(&mut self, needle: &str, limit: Duration) {
-        let t0 = Instant::now();
-        loop {
-            self.pump();
-            if self.seen.iter().any(|l| l.contains(needle)) {
-                return;
-            }
-            if let Ok(Some(st)) = self.child.try_wait() {
-                self.pump();
-                panic!(
-                    "{} exited ({st}) before {needle:?}:\n{}",
-                    self.name,
-                    self.seen.join("\n")
-                );
-            }
-            assert!(
-                t0.elapsed() < limit,
-                "{}: no {needle:?} within {limit:?}:\n{}",
-                self.name,
-                self.seen.join("\n")
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-
-    fn stop(&mut self) -> ExitStatus {
-        // SAFETY: kill(2) on a child we spawned and have not reaped.
-        unsafe {
-            libc::kill(self.child.id() as i32, libc::SIGINT);
-        }
-        let t0 = Instant::now();
-        loop {
-            if let Ok(Some(st)) = self.child.try_wait() {
-                std::thread::sleep(Duration::from_millis(100));
-                self.pump();
-                return st;
-            }
-            assert!(
-                t0.elapsed() < Duration::from_secs(10),
-                "{} ignored SIGINT",
-                self.name
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        if let Ok(None) = self.child.try_wait() {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
-    }
+    let mut cmd = Command::new(BRIDGE);
+    cmd.args(args).env_remove("TAXEL_PREFIX");
+    Proc::start(name, cmd)
 }
 
 /// Removes what dead nodes of the test's prefixes left and the prefixes' management segments,

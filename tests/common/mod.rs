@@ -3,12 +3,10 @@
 
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
-use std::sync::mpsc::{channel, Receiver};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 pub const TAXEL: &str = env!("CARGO_BIN_EXE_taxel");
 
@@ -23,45 +21,13 @@ pub fn unique_prefix(tag: &str) -> String {
     )
 }
 
-/// A child process whose stderr lines are collected.
-pub struct Proc {
-    pub name: String,
-    pub child: Child,
-    lines: Receiver<String>,
-    pub seen: Vec<String>,
-}
+pub use taxel_testkit::Proc;
 
+/// Starts `taxel args...` under the iceoryx2 prefix `prefix`.
 pub fn spawn(name: &str, prefix: &str, args: &[&str]) -> Proc {
-    let mut child = Command::new(TAXEL)
-        .args(args)
-        .env("TAXEL_PREFIX", prefix)
-        .env("RUST_LOG", "info")
-        .env("NO_COLOR", "1")
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("spawn taxel");
-    let (tx, rx) = channel();
-    let err = child.stderr.take().expect("stderr");
-    let out = child.stdout.take().expect("stdout");
-    let tx2 = tx.clone();
-    std::thread::spawn(move || {
-        for l in BufReader::new(err).lines().map_while(Result::ok) {
-            let _ = tx.send(l);
-        }
-    });
-    std::thread::spawn(move || {
-        for l in BufReader::new(out).lines().map_while(Result::ok) {
-            let _ = tx2.send(l);
-        }
-    });
-    Proc {
-        name: name.to_string(),
-        child,
-        lines: rx,
-        seen: Vec::new(),
-    }
+    let mut cmd = Command::new(TAXEL);
+    cmd.args(args).env("TAXEL_PREFIX", prefix);
+    Proc::start(name, cmd)
 }
 
 /// Spawns `taxel args...` and waits (20 s at most) until it logs `ready`.
@@ -69,85 +35,6 @@ pub fn spawn_ready(name: &str, prefix: &str, args: &[&str], ready: &str) -> Proc
     let mut p = spawn(name, prefix, args);
     p.wait_for(ready, Duration::from_secs(20));
     p
-}
-
-impl Proc {
-    /// Collects output lines that have arrived so far.
-    pub fn pump(&mut self) {
-        while let Ok(l) = self.lines.try_recv() {
-            self.seen.push(l);
-        }
-    }
-
-    /// Waits until a line containing `needle` appears.
-    pub fn wait_for(&mut self, needle: &str, limit: Duration) {
-        let t0 = Instant::now();
-        loop {
-            self.pump();
-            if self.seen.iter().any(|l| l.contains(needle)) {
-                return;
-            }
-            if let Ok(Some(st)) = self.child.try_wait() {
-                self.pump();
-                panic!(
-                    "{} exited ({st}) before {needle:?}:\n{}",
-                    self.name,
-                    self.seen.join("\n")
-                );
-            }
-            assert!(
-                t0.elapsed() < limit,
-                "{} did not print {needle:?} within {limit:?}:\n{}",
-                self.name,
-                self.seen.join("\n")
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-
-    pub fn sigint(&self) {
-        // SAFETY: kill(2) on our own unreaped child.
-        unsafe {
-            libc::kill(self.child.id() as i32, libc::SIGINT);
-        }
-    }
-
-    /// Waits for exit with a deadline (kills and fails past it).
-    pub fn wait_exit(&mut self, limit: Duration) -> ExitStatus {
-        let t0 = Instant::now();
-        loop {
-            if let Ok(Some(st)) = self.child.try_wait() {
-                std::thread::sleep(Duration::from_millis(50));
-                self.pump();
-                return st;
-            }
-            if t0.elapsed() > limit {
-                let _ = self.child.kill();
-                let _ = self.child.wait();
-                self.pump();
-                panic!(
-                    "{} did not exit within {limit:?}:\n{}",
-                    self.name,
-                    self.seen.join("\n")
-                );
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-
-    pub fn output(&mut self) -> String {
-        self.pump();
-        self.seen.join("\n")
-    }
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        if let Ok(None) = self.child.try_wait() {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
-    }
 }
 
 /// Runs `taxel args...` to completion and returns (exit code, stdout, stderr).

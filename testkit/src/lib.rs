@@ -1,0 +1,146 @@
+//! taxel-testkit owns what the integration tests of several crates share: a child process
+//! (a taxel role, a bridge) whose stdout and stderr lines are collected as they arrive, waited
+//! on for a line or for its exit with a deadline, stopped with SIGINT as Ctrl-C would, and
+//! killed when the test ends early. Test support only; nothing here ships.
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::mpsc::{channel, Receiver};
+use std::time::{Duration, Instant};
+
+/// A child process whose output lines are collected.
+pub struct Proc {
+    pub name: String,
+    pub child: Child,
+    lines: Receiver<String>,
+    /// Every line read so far (stderr and stdout interleaved as they arrived).
+    pub seen: Vec<String>,
+}
+
+impl Proc {
+    /// Starts `cmd` (program, arguments and environment set by the caller) with
+    /// `RUST_LOG=info`, `NO_COLOR=1` unless the caller set them, no stdin, and both output
+    /// streams collected. Panics (it is a test) when the program cannot start.
+    pub fn start(name: &str, mut cmd: Command) -> Proc {
+        let set = |cmd: &Command, key: &str| cmd.get_envs().any(|(k, _)| k == key);
+        if !set(&cmd, "RUST_LOG") {
+            cmd.env("RUST_LOG", "info");
+        }
+        if !set(&cmd, "NO_COLOR") {
+            cmd.env("NO_COLOR", "1");
+        }
+        let mut child = cmd
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap_or_else(|e| panic!("spawn {name}: {e}"));
+        let (tx, rx) = channel();
+        let tx2 = tx.clone();
+        let err = child.stderr.take().expect("stderr");
+        let out = child.stdout.take().expect("stdout");
+        std::thread::spawn(move || {
+            for l in BufReader::new(err).lines().map_while(Result::ok) {
+                let _ = tx.send(l);
+            }
+        });
+        std::thread::spawn(move || {
+            for l in BufReader::new(out).lines().map_while(Result::ok) {
+                let _ = tx2.send(l);
+            }
+        });
+        Proc {
+            name: name.to_string(),
+            child,
+            lines: rx,
+            seen: Vec::new(),
+        }
+    }
+
+    /// Collects output lines that have arrived so far.
+    pub fn pump(&mut self) {
+        while let Ok(l) = self.lines.try_recv() {
+            self.seen.push(l);
+        }
+    }
+
+    /// Waits until a line containing `needle` appears; fails if the process exits first or
+    /// `limit` passes.
+    pub fn wait_for(&mut self, needle: &str, limit: Duration) {
+        let t0 = Instant::now();
+        loop {
+            self.pump();
+            if self.seen.iter().any(|l| l.contains(needle)) {
+                return;
+            }
+            if let Ok(Some(st)) = self.child.try_wait() {
+                self.pump();
+                panic!(
+                    "{} exited ({st}) before {needle:?}:\n{}",
+                    self.name,
+                    self.seen.join("\n")
+                );
+            }
+            assert!(
+                t0.elapsed() < limit,
+                "{} did not print {needle:?} within {limit:?}:\n{}",
+                self.name,
+                self.seen.join("\n")
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Sends SIGINT (what Ctrl-C sends).
+    pub fn sigint(&self) {
+        // SAFETY: kill(2) on our own unreaped child.
+        unsafe {
+            libc::kill(self.child.id() as i32, libc::SIGINT);
+        }
+    }
+
+    /// Waits for exit with a deadline (kills and fails past it).
+    pub fn wait_exit(&mut self, limit: Duration) -> ExitStatus {
+        let t0 = Instant::now();
+        loop {
+            if let Ok(Some(st)) = self.child.try_wait() {
+                // Let the reader threads deliver the last lines.
+                std::thread::sleep(Duration::from_millis(100));
+                self.pump();
+                return st;
+            }
+            if t0.elapsed() > limit {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                self.pump();
+                panic!(
+                    "{} did not exit within {limit:?}:\n{}",
+                    self.name,
+                    self.seen.join("\n")
+                );
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// SIGINT, then the exit status (10 s at most).
+    pub fn stop(&mut self) -> ExitStatus {
+        self.sigint();
+        self.wait_exit(Duration::from_secs(10))
+    }
+
+    /// Everything printed so far.
+    pub fn output(&mut self) -> String {
+        self.pump();
+        self.seen.join("\n")
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
