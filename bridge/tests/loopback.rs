@@ -25,8 +25,9 @@ const BRIDGE: &str = env!("CARGO_BIN_EXE_taxel-bridge");
 const FRAMES: u64 = 2000;
 /// Their period (1 kHz, a glove's rate).
 const PERIOD: Duration = Duration::from_millis(1);
-/// Frames the test tolerates losing over the link (0.5 %): buffers are 64 deep at both ends, so
-/// a loss means a bridge stalled for more than 64 ms. Every loss is reported.
+/// Frames the test tolerates losing over the link (0.5 %): the Zenoh carrier buffers 64 frames
+/// (the streams 256), so a loss means a bridge stalled for more than about 64 ms. Every loss is
+/// reported.
 const MAX_LOST: u64 = FRAMES / 200;
 
 /// Starts `taxel-bridge args...` (outside any TAXEL_PREFIX of the environment).
