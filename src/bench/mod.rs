@@ -28,6 +28,10 @@ pub struct BenchArgs {
     /// Seconds per case (overrides --quick).
     #[arg(long)]
     pub seconds: Option<f64>,
+    /// Run only these cases (comma-separated names, e.g. `iox2_event_1hop,force_path_adaptive`;
+    /// default: all).
+    #[arg(long, value_delimiter = ',')]
+    pub cases: Vec<String>,
 }
 
 #[derive(Debug, Clone, Default)]
@@ -548,7 +552,18 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
             }),
         ),
     ];
+    if let Some(bad) = a
+        .cases
+        .iter()
+        .find(|c| !steps.iter().any(|(name, _)| name == c))
+    {
+        let known: Vec<&str> = steps.iter().map(|(name, _)| *name).collect();
+        anyhow::bail!("--cases: unknown case {bad:?} (known: {})", known.join(", "));
+    }
     for (i, (name, f)) in steps.iter().enumerate() {
+        if !a.cases.is_empty() && !a.cases.iter().any(|c| c == name) {
+            continue;
+        }
         eprintln!("taxel bench: {name} ({secs} s at {rate} Hz) ...");
         let mut c = f(i)?;
         if c.rate_hz == 0.0 {
