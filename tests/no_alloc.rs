@@ -1,7 +1,7 @@
 //! Nothing on the per-sample hot path allocates: a counting global allocator watches the
 //! calibrator's per-frame computation, both serial parsers, the estimator (including the frames
-//! that complete a no-load window and its curvature prediction), the logger's record encoding
-//! and the consumers' statistics, after a warm-up. (iceoryx2's own send and receive are not
+//! that complete a no-load window and its curvature prediction), the logger's record encoding,
+//! the consumers' statistics and the adaptive wake-up's rhythm model, after a warm-up. (iceoryx2's own send and receive are not
 //! counted here.)
 
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -184,4 +184,18 @@ fn hot_paths_do_not_allocate() {
         }
     });
     assert_eq!(n, 0, "statistics allocated {n} times");
+
+    // The adaptive wake-up's rhythm model: learning, refits and plans, per sample.
+    let mut r = taxel_runtime::wake::rhythm::Rhythm::new();
+    let mut planned = 0u64;
+    let n = allocations(|| {
+        for i in 0..5_000u64 {
+            r.captured(i, 1_000_000_000 + i * 1_000_000 + (i * 7919 % 30) * 1_000);
+            r.hop(1_500 + i % 700);
+            r.slept(30_000 + (i * 104_729 % 40) * 1_000);
+            planned += u64::from(r.plan().is_some());
+        }
+    });
+    assert_eq!(n, 0, "the rhythm model allocated {n} times");
+    assert!(planned > 4_900, "it planned {planned} of 5000");
 }

@@ -168,9 +168,10 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
         dropped = s.dropped,
         reloads = s.reloads,
         adaptive_caught = s.wake.caught,
+        adaptive_waiting = s.wake.waiting,
         adaptive_fallbacks = s.wake.fallbacks,
         adaptive_spin_ms = s.wake.spin_ns / 1_000_000,
-        adaptive_learned_us = ?s.wake.learned_us,
+        adaptive_learned = ?s.wake.learned,
         cpu_s = format!("{:.2}", taxel_runtime::process::cpu_seconds()),
         "calibrator stopped"
     );

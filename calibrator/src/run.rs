@@ -185,7 +185,7 @@ pub fn run(
         &raw,
         LoopOptions::new(cfg.wake),
         shutdown,
-        |f| f.t_capture_ns,
+        |f| (f.seq, f.t_capture_ns),
         |frame, _| {
             // Curvature estimates are rare and history for a late joiner comes without a
             // wake-up: look on every frame (a cheap check).
@@ -221,7 +221,8 @@ pub fn run(
                 gap_first = false;
             }
             out.t_publish_ns = now_ns();
-            force.send(&out)?;
+            // A control loop polling on this core takes the sample before the notification.
+            force.send_handing_over(&out)?;
             summary.frames += 1;
             if summary.frames % 256 == 0 && last_report.elapsed() >= Duration::from_secs(1) {
                 debug!(

@@ -250,7 +250,7 @@ fn run(a: Args) -> Result<(), Failure> {
             tick: Duration::from_secs_f64(a.watchdog_ms / 2000.0),
         },
         &shutdown,
-        |f| f.t_capture_ns,
+        |f| (f.seq, f.t_capture_ns),
         |f, t| {
             last_arrival.set(t);
             st.borrow_mut().on_sample(f, a.target_n, deadline_ns);

@@ -10,7 +10,7 @@ use taxel_msgs::{ForceSample, RawFrame, Stream};
 use taxel_runtime::ipc::{Ipc, StreamSubscriber};
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
 use taxel_runtime::stats::SeqTracker;
-use taxel_runtime::wake::{receive_loop, LoopOptions, WakeMode};
+use taxel_runtime::wake::{receive_loop, AdaptiveStats, LoopOptions, WakeMode};
 use taxel_runtime::{now_ns, Shutdown};
 
 use crate::age::{json_report, AgeHistogram};
@@ -46,43 +46,76 @@ pub fn main(args: Args) -> ExitCode {
 
 fn measure<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     sub: &StreamSubscriber<T>,
-    stamp: impl Fn(&T) -> (u64, u64),
+    stamp: impl Fn(&T) -> Stamp,
     mode: WakeMode,
     seconds: Option<f64>,
     shutdown: &Shutdown,
-) -> anyhow::Result<(SeqTracker, AgeHistogram, f64)> {
+) -> anyhow::Result<Measured> {
     tracing::info!("latency probe ready on {} ({mode:?} wake-up)", sub.name());
     let mut seq = SeqTracker::default();
     let mut h = AgeHistogram::new();
+    let mut last_hop = AgeHistogram::new();
     let start = Instant::now();
     let until = seconds.map(|s| start + std::time::Duration::from_secs_f64(s));
-    receive_loop(
+    let wake = receive_loop(
         sub,
         LoopOptions {
             until,
             ..LoopOptions::new(mode)
         },
         shutdown,
-        |v| stamp(v).1,
+        |v| {
+            let s = stamp(v);
+            (s.seq, s.capture_ns)
+        },
         |v, _| {
             let now = now_ns();
-            let (s, t) = stamp(v);
-            h.record_ns(now.saturating_sub(t));
-            seq.observe(s);
+            let s = stamp(v);
+            h.record_ns(now.saturating_sub(s.capture_ns));
+            if s.published_ns > 0 {
+                last_hop.record_ns(now.saturating_sub(s.published_ns));
+            }
+            seq.observe(s.seq);
             Ok(())
         },
         || {},
     )?;
-    Ok((seq, h, start.elapsed().as_secs_f64()))
+    Ok(Measured {
+        seq,
+        h,
+        last_hop,
+        secs: start.elapsed().as_secs_f64(),
+        wake,
+    })
+}
+
+/// The stamps of one sample.
+struct Stamp {
+    seq: u64,
+    capture_ns: u64,
+    /// When the last hop's sender published it (0: the capture is the publication).
+    published_ns: u64,
+}
+
+/// What a probe measured.
+struct Measured {
+    seq: SeqTracker,
+    /// Age since capture.
+    h: AgeHistogram,
+    /// Age since the last hop's publication (force samples: the calibrator's send).
+    last_hop: AgeHistogram,
+    secs: f64,
+    /// The adaptive waiter's counts (zero in the other modes).
+    wake: AdaptiveStats,
 }
 
 /// Several sensors' streams in one WaitSet; drops are counted per sensor.
 fn measure_many<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     subs: &[StreamSubscriber<T>],
-    stamp: impl Fn(&T) -> (u64, u64),
+    stamp: impl Fn(&T) -> Stamp,
     seconds: Option<f64>,
     shutdown: &Shutdown,
-) -> anyhow::Result<(SeqTracker, AgeHistogram, f64)> {
+) -> anyhow::Result<Measured> {
     let ws = taxel_runtime::ipc::waitset()?;
     let mut guards = Vec::new();
     for sub in subs {
@@ -105,9 +138,9 @@ fn measure_many<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
                 for (i, g) in guards.iter().enumerate() {
                     if id.has_event_from(g) {
                         if let Err(e) = subs[i].drain(|v| {
-                            let (s, t) = stamp(v);
-                            h.record_ns(now_ns().saturating_sub(t));
-                            seqs[i].observe(s);
+                            let s = stamp(v);
+                            h.record_ns(now_ns().saturating_sub(s.capture_ns));
+                            seqs[i].observe(s.seq);
                         }) {
                             failure = Some(e);
                         }
@@ -127,7 +160,13 @@ fn measure_many<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
         total.received += s.received;
         total.dropped += s.dropped;
     }
-    Ok((total, h, start.elapsed().as_secs_f64()))
+    Ok(Measured {
+        seq: total,
+        h,
+        last_hop: AgeHistogram::new(),
+        secs: start.elapsed().as_secs_f64(),
+        wake: AdaptiveStats::default(),
+    })
 }
 
 /// One stream of every requested sensor: one sensor in the requested wake mode, several
@@ -136,9 +175,9 @@ fn measure_streams<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     ipc: &Ipc,
     a: &Args,
     stream: Stream,
-    stamp: fn(&T) -> (u64, u64),
+    stamp: fn(&T) -> Stamp,
     shutdown: &Shutdown,
-) -> Result<(SeqTracker, AgeHistogram, f64), Failure> {
+) -> Result<Measured, Failure> {
     let mut subs = Vec::new();
     for s in &a.sensor {
         subs.push(ipc.subscriber::<T>(s, stream).runtime_err()?);
@@ -173,12 +212,22 @@ fn run(a: Args) -> Result<(), Failure> {
             "several sensors are measured event-driven only (drop --wake)"
         )));
     }
-    let (seq, h, secs) = if a.stream == "raw" {
+    let Measured {
+        seq,
+        h,
+        last_hop,
+        secs,
+        wake,
+    } = if a.stream == "raw" {
         measure_streams::<RawFrame>(
             &ipc,
             &a,
             Stream::Raw,
-            |f| (f.seq, f.t_capture_ns),
+            |f| Stamp {
+                seq: f.seq,
+                capture_ns: f.t_capture_ns,
+                published_ns: 0,
+            },
             &shutdown,
         )?
     } else {
@@ -186,7 +235,11 @@ fn run(a: Args) -> Result<(), Failure> {
             &ipc,
             &a,
             Stream::Force,
-            |f| (f.seq, f.t_capture_ns),
+            |f| Stamp {
+                seq: f.seq,
+                capture_ns: f.t_capture_ns,
+                published_ns: f.t_publish_ns,
+            },
             &shutdown,
         )?
     };
@@ -200,6 +253,15 @@ fn run(a: Args) -> Result<(), Failure> {
                 &[
                     ("seconds", (secs * 1000.0).round() / 1000.0),
                     ("cpu_s", taxel_runtime::process::cpu_seconds()),
+                    ("wake_caught", wake.caught as f64),
+                    ("wake_waiting", wake.waiting as f64),
+                    ("wake_fallbacks", wake.fallbacks as f64),
+                    ("wake_spin_s", wake.spin_ns as f64 / 1e9),
+                    ("wake_overshoot_us", wake.learned.overshoot_us),
+                    ("wake_capture_spread_us", wake.learned.capture_spread_us),
+                    ("wake_hop_us", wake.learned.hop_us),
+                    ("last_hop_p50_us", last_hop.percentile_us(50.0)),
+                    ("last_hop_p99_us", last_hop.percentile_us(99.0)),
                 ]
             )
         );

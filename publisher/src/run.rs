@@ -115,7 +115,9 @@ pub fn publish(
         if frame.full_scale > 0.0 && frame.counts[..n].iter().any(|&c| c >= frame.full_scale) {
             frame.flags |= raw_flags::RAIL;
         }
-        raw.send(&frame)?;
+        // A subscriber polling on this core (the adaptive wake-up) takes the frame before
+        // the notification, the reference and the next frame are made.
+        raw.send_handing_over(&frame)?;
         if let Some(r) = p.reference {
             reference.seq = frame.seq;
             reference.t_capture_ns = frame.t_capture_ns;

@@ -558,7 +558,10 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
         .find(|c| !steps.iter().any(|(name, _)| name == c))
     {
         let known: Vec<&str> = steps.iter().map(|(name, _)| *name).collect();
-        anyhow::bail!("--cases: unknown case {bad:?} (known: {})", known.join(", "));
+        anyhow::bail!(
+            "--cases: unknown case {bad:?} (known: {})",
+            known.join(", ")
+        );
     }
     for (i, (name, f)) in steps.iter().enumerate() {
         if !a.cases.is_empty() && !a.cases.iter().any(|c| c == name) {

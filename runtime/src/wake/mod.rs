@@ -1,9 +1,11 @@
 //! How a consumer waits for its next sample. `event`: sleep in a WaitSet until the publisher's
 //! notification (the default; about 30-40 us of wake-up on a VM). `busy`: poll the subscriber
-//! in a loop (lowest latency, a whole core). `adaptive`: learn the stream's period, sleep until
-//! shortly before the next sample is due (timer slack 1 ns, the sleep's own overshoot learned),
-//! poll for a bounded time around the due time, and fall back to the event when the sample is
-//! late: busy-poll latency at a fraction of a core.
+//! in a loop (lowest latency, a whole core). `adaptive`: learn the stream's rhythm (capture
+//! grid, transport hop, our own sleep overshoot; see `rhythm`), sleep (timer slack 1 ns) until
+//! a high quantile of the overshoot still lands before the earliest expected arrival, poll with
+//! `sched_yield` until the sample comes, within a token-bucket budget of 7 % of a core, and
+//! fall back to the event when the budget runs out: busy-poll latency at a bounded share of a
+//! core.
 
 use std::time::{Duration, Instant};
 
@@ -20,113 +22,96 @@ pub enum WakeMode {
     Adaptive,
 }
 
-/// Spin time allowed per expected sample, as a share of the period.
+pub mod rhythm;
+
+pub use rhythm::Learned;
+use rhythm::Rhythm;
+
+/// Share of a core the adaptive waiter may spend polling, averaged over time (the sleeps and
+/// wake-ups around it cost about another 1.5 % on a VM).
 const SPIN_SHARE: f64 = 0.08;
+/// Share of the per-period budget that waking early may use; the rest is saved up for samples
+/// that come late (a publisher's own late wake-up).
+const EARLY_SHARE: f64 = 0.6;
+/// Polling saved up for late samples, at most (ns): a few late samples are waited for, a
+/// stalled stream costs this once and then the event takes over.
+const TOKENS_MAX_NS: f64 = 600_000.0;
+/// One poll never runs longer than this share of the period.
+const MAX_POLL_SHARE: f64 = 0.5;
+/// A wake-up polls at least this long (ns) even with the budget spent: the sample is usually
+/// due within microseconds, and the event would cost tens. At most 1 % of a core at 1 kHz.
+const MIN_POLL_NS: f64 = 10_000.0;
 
 /// What the adaptive waiter has learned and spent.
 #[derive(Debug, Clone, Default)]
 pub struct AdaptiveStats {
-    /// Samples caught while polling.
+    /// Samples that arrived while polling.
     pub caught: u64,
-    /// Times the sample was late and the event took over.
+    /// Samples already waiting when polling began (the wake-up came late).
+    pub waiting: u64,
+    /// Times the sample did not come within the polling budget and the event took over.
     pub fallbacks: u64,
     /// Time spent polling (ns).
     pub spin_ns: u64,
-    /// What was learned: period, capture jitter, transport delay, sleep overshoot (us).
-    pub learned_us: [f64; 4],
+    /// What was learned.
+    pub learned: Learned,
 }
 
+/// Token bucket of polling time: refilled at `SPIN_SHARE` of wall time, spent by polling.
 #[derive(Debug, Clone)]
-struct Adaptive {
-    /// Capture time of the newest sample.
-    last_capture: Option<u64>,
-    period_ns: f64,
-    /// Mean absolute deviation of capture intervals from the period.
-    jitter_ns: f64,
-    /// Capture-to-receipt delay of samples caught while polling (the transport).
-    hop_ns: f64,
-    /// How late sleeps end: mean and mean absolute deviation.
-    over_ns: f64,
-    over_dev_ns: f64,
-    stats: AdaptiveStats,
+struct Budget {
+    tokens: f64,
+    at: u64,
 }
 
-impl Adaptive {
-    fn new() -> Adaptive {
-        // Sleeps end within a few us of their target instead of the default 50 us slack.
-        // SAFETY: prctl(PR_SET_TIMERSLACK) only changes this thread's timer slack.
-        unsafe {
-            libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0);
-        }
-        Adaptive {
-            last_capture: None,
-            period_ns: 0.0,
-            jitter_ns: 20_000.0,
-            hop_ns: 5_000.0,
-            over_ns: 40_000.0,
-            over_dev_ns: 10_000.0,
-            stats: AdaptiveStats::default(),
+impl Budget {
+    fn new(now: u64) -> Budget {
+        Budget {
+            tokens: TOKENS_MAX_NS,
+            at: now,
         }
     }
 
-    /// A sample captured at `capture` was received at `recv`. `polled`: it arrived while we
-    /// were polling, so `recv - capture` is the true delay. Otherwise the delay estimate is
-    /// nudged: down when the sample was already waiting (we woke late), up when it came after
-    /// the polling window (`late`), so the window converges on the real arrival even when the
-    /// producer's own delay varies (a second hop).
-    fn arrived(&mut self, capture: u64, recv: u64, polled: bool) {
-        self.arrived_with(capture, recv, polled, false)
+    fn refill(&mut self, now: u64) -> f64 {
+        let dt = now.saturating_sub(self.at) as f64;
+        self.tokens = (self.tokens + SPIN_SHARE * dt).min(TOKENS_MAX_NS);
+        self.at = now;
+        self.tokens
     }
 
-    fn arrived_with(&mut self, capture: u64, recv: u64, polled: bool, late: bool) {
-        if let Some(last) = self.last_capture {
-            let dt = capture.saturating_sub(last) as f64;
-            if self.period_ns == 0.0 {
-                self.period_ns = dt;
-            } else if dt > 0.25 * self.period_ns && dt < 1.75 * self.period_ns {
-                let err = dt - self.period_ns;
-                self.period_ns += 0.02 * err;
-                self.jitter_ns += 0.05 * (err.abs() - self.jitter_ns);
-            }
-        }
-        let hop = (recv.saturating_sub(capture) as f64).min(1e6);
-        if polled {
-            self.hop_ns += 0.05 * (hop - self.hop_ns);
-        } else if late {
-            self.hop_ns += 0.2 * (hop - self.hop_ns).max(0.0);
-        } else {
-            self.hop_ns = (self.hop_ns - 2_000.0).max(0.0);
-        }
-        self.last_capture = Some(capture);
-    }
-
-    fn slept(&mut self, over: f64) {
-        let over = over.min(1e6);
-        self.over_dev_ns += 0.05 * ((over - self.over_ns).abs() - self.over_dev_ns);
-        self.over_ns += 0.05 * (over - self.over_ns);
-    }
-
-    /// When to wake (absolute ns) and until when to poll, or None when nothing is known yet.
-    fn plan(&self) -> Option<(u64, u64)> {
-        let last = self.last_capture?;
-        if self.period_ns <= 0.0 {
-            return None;
-        }
-        let due = last as f64 + self.period_ns + self.hop_ns;
-        // The polling window never exceeds the CPU budget: when sleeps overshoot a lot (a
-        // loaded machine), wake-ups come later rather than polling longer.
-        let budget = SPIN_SHARE * self.period_ns;
-        let late = (3.0 * self.jitter_ns + 20_000.0).min(0.5 * budget);
-        let early = (self.over_ns + 3.0 * self.over_dev_ns + 2.0 * self.jitter_ns + 5_000.0)
-            .min(budget - late);
-        let wake = due - early;
-        Some((wake.max(0.0) as u64, (due + late) as u64))
+    /// Debt is capped at one full bucket, so a long stall is paid back within a few periods.
+    fn spend(&mut self, ns: u64) {
+        self.tokens = (self.tokens - ns as f64).max(-TOKENS_MAX_NS);
     }
 }
 
-/// Receives `sub`'s samples in `mode` until shutdown or `until`, handing each to `on_sample`
-/// (with its arrival time) and calling `on_tick` about every `tick_every` (at most 100 ms). `capture_ns` gives a
-/// sample's capture time, which the adaptive mode uses to learn the stream's rhythm.
+/// Sets this thread's timer slack to 1 ns, so sleeps end within a few microseconds of their
+/// target instead of the default 50 us.
+fn fine_timer_slack() {
+    // SAFETY: prctl(PR_SET_TIMERSLACK) only changes this thread's timer slack.
+    unsafe {
+        libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0);
+    }
+}
+
+/// Sleeps until `at` (ns, CLOCK_MONOTONIC) or until a signal interrupts.
+fn sleep_until(at: u64) {
+    let ts = libc::timespec {
+        tv_sec: (at / 1_000_000_000) as libc::time_t,
+        tv_nsec: (at % 1_000_000_000) as libc::c_long,
+    };
+    // SAFETY: clock_nanosleep reads the timespec we own; the remaining-time pointer is unused
+    // with TIMER_ABSTIME and may be null.
+    unsafe {
+        libc::clock_nanosleep(
+            libc::CLOCK_MONOTONIC,
+            libc::TIMER_ABSTIME,
+            &ts,
+            std::ptr::null_mut(),
+        );
+    }
+}
+
 /// How a receive loop waits and for how long.
 #[derive(Debug, Clone, Copy)]
 pub struct LoopOptions {
@@ -148,11 +133,15 @@ impl LoopOptions {
     }
 }
 
+/// Receives `sub`'s samples in `opts.mode` until shutdown or `opts.until`, handing each to
+/// `on_sample` (with its arrival time) and calling `on_tick` about every `opts.tick`. `stamp`
+/// gives a sample's sequence number and capture time, from which the adaptive mode learns the
+/// stream's rhythm.
 pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     sub: &StreamSubscriber<T>,
     opts: LoopOptions,
     shutdown: &Shutdown,
-    capture_ns: impl Fn(&T) -> u64,
+    stamp: impl Fn(&T) -> (u64, u64),
     mut on_sample: impl FnMut(&T, u64) -> Result<(), IpcError>,
     mut on_tick: impl FnMut(),
 ) -> Result<AdaptiveStats, IpcError> {
@@ -225,14 +214,18 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
             Ok(AdaptiveStats::default())
         }
         WakeMode::Adaptive => {
-            let mut a = Adaptive::new();
-            // Hands every waiting sample to `on_sample`; returns the newest one's capture time
-            // and when it was received.
-            let mut poll = || -> Result<Option<(u64, u64)>, IpcError> {
+            fine_timer_slack();
+            let mut rhythm = Rhythm::new();
+            let mut budget = Budget::new(now_ns());
+            let mut stats = AdaptiveStats::default();
+            // Hands every waiting sample to `on_sample`; returns the newest one's sequence
+            // number and capture time, and when it was received.
+            type Newest = Option<((u64, u64), u64)>;
+            let mut poll = || -> Result<Newest, IpcError> {
                 let t = now_ns();
                 let mut newest = None;
                 sub.poll_each(|v| {
-                    newest = Some(capture_ns(v));
+                    newest = Some(stamp(v));
                     on_sample(v, t)
                 })?;
                 Ok(newest.map(|c| (c, t)))
@@ -240,58 +233,76 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
             while !done(shutdown) {
                 tick(&mut last_tick);
                 // Anything already there?
-                if let Some((c, t)) = poll()? {
-                    a.arrived(c, t, false);
+                if let Some(((q, c), _)) = poll()? {
+                    rhythm.captured(q, c);
                     sub.clear_wakeups()?;
                     continue;
                 }
-                if let Some((wake, spin_until)) = a.plan() {
+                if let Some(plan) = rhythm.plan() {
+                    // Wake early enough for a high quantile of our sleeps to end before the
+                    // sample, but never plan to poll longer than the budget holds: when sleeps
+                    // overshoot a lot (a loaded host), wake later rather than poll longer.
                     let now = now_ns();
+                    let period = rhythm.period_ns().unwrap_or(0.0);
+                    let affordable = budget.refill(now).min(EARLY_SHARE * SPIN_SHARE * period)
+                        as u64
+                        + plan.usual_overshoot_ns;
+                    let wake = plan.arrival_ns.saturating_sub(plan.lead_ns.min(affordable));
                     if wake > now {
-                        std::thread::sleep(Duration::from_nanos((wake - now).min(100_000_000)));
-                        a.slept(now_ns().saturating_sub(wake) as f64);
+                        let until = wake.min(now + tick_every.as_nanos() as u64);
+                        sleep_until(until);
+                        if until < wake {
+                            // A tick is due first; then plan again.
+                            continue;
+                        }
+                        rhythm.slept(now_ns().saturating_sub(wake));
                     }
                     let spin_start = now_ns();
-                    let mut got = false;
-                    let mut empty = 0u32;
+                    let limit = budget
+                        .refill(spin_start)
+                        .min(MAX_POLL_SHARE * period)
+                        .max(MIN_POLL_NS);
+                    let stop = spin_start + limit as u64;
+                    let mut polled = false;
+                    let mut got = None;
                     loop {
-                        if let Some((c, t)) = poll()? {
-                            // Only a sample that arrived while we polled measures the
-                            // transport; one already waiting measures our lateness.
-                            a.arrived(c, t, empty > 0);
-                            a.stats.caught += 1;
-                            got = true;
+                        if let Some(x) = poll()? {
+                            got = Some(x);
                             break;
                         }
-                        if now_ns() >= spin_until || done(shutdown) {
+                        polled = true;
+                        if now_ns() >= stop || done(shutdown) {
                             break;
                         }
-                        empty += 1;
                         // Let the producer run on this core if it is waiting for one (two
                         // pollers must not starve the publisher on a 2-core machine).
                         std::thread::yield_now();
                     }
-                    a.stats.spin_ns += now_ns().saturating_sub(spin_start);
-                    if got {
+                    let spent = now_ns().saturating_sub(spin_start);
+                    budget.spend(spent);
+                    stats.spin_ns += spent;
+                    if let Some(((q, c), t)) = got {
+                        rhythm.captured(q, c);
+                        if polled {
+                            // It arrived while we polled: t - c is the true hop.
+                            rhythm.hop(t.saturating_sub(c));
+                            stats.caught += 1;
+                        } else {
+                            stats.waiting += 1;
+                        }
                         sub.clear_wakeups()?;
                         continue;
                     }
-                    a.stats.fallbacks += 1;
+                    stats.fallbacks += 1;
                 }
-                // Late or unknown: sleep on the event.
+                // Not there within the budget, or no rhythm yet: sleep on the event.
                 sub.wait_wakeup(tick_every)?;
-                if let Some((c, t)) = poll()? {
-                    let planned = a.plan().is_some();
-                    a.arrived_with(c, t, false, planned);
+                if let Some(((q, c), _)) = poll()? {
+                    rhythm.captured(q, c);
                 }
             }
-            a.stats.learned_us = [
-                a.period_ns / 1e3,
-                a.jitter_ns / 1e3,
-                a.hop_ns / 1e3,
-                a.over_ns / 1e3,
-            ];
-            Ok(a.stats)
+            stats.learned = rhythm.learned();
+            Ok(stats)
         }
     }
 }
