@@ -1,6 +1,6 @@
 //! How a consumer waits for its next sample. `event`: sleep in a WaitSet until the publisher's
 //! notification (the default; about 30-40 us of wake-up on a VM). `busy`: poll the subscriber
-//! in a loop (lowest latency, a whole core). `adaptive`: learn the stream's rhythm (capture
+//! in a loop, yielding between polls (lowest latency, a whole core). `adaptive`: learn the stream's rhythm (capture
 //! grid, transport hop, our own sleep overshoot; see `rhythm`), sleep (timer slack 1 ns) until
 //! a high quantile of the overshoot still lands before the earliest expected arrival, poll with
 //! `sched_yield` until the sample comes, within a token-bucket budget of 7 % of a core, and
@@ -199,7 +199,10 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
                 let t = now_ns();
                 let n = sub.poll_each(|v| on_sample(v, t))?;
                 if n == 0 {
-                    std::hint::spin_loop();
+                    // Yield rather than only spin: a sender sharing this core (which yields
+                    // between publishing and notifying) gets it back at once instead of after
+                    // our whole time slice. Costs a system call per empty poll.
+                    std::thread::yield_now();
                     polls += 1;
                     if polls >= 4096 {
                         polls = 0;
