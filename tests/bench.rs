@@ -24,6 +24,8 @@ fn bench_json_has_every_case() {
         "uds_block_1hop",
         "uds_spin_1hop",
         "tcp_block_1hop",
+        "uds_block_2hop",
+        "timer_wake_overshoot",
         "force_path_event",
         "force_path_busy",
         "force_path_adaptive",

@@ -46,6 +46,8 @@ struct CaseResult {
     max: f64,
     /// CPU of the waiting processes (% of one core each, summed).
     cpu_pct: f64,
+    /// The busiest waiting process's CPU (% of one core).
+    cpu_pct_max_process: f64,
     /// Stream rate of the case (Hz).
     rate_hz: f64,
 }
@@ -111,7 +113,9 @@ fn output(mut c: Child) -> String {
     out
 }
 
-fn from_json(case: &str, json: &str, cpu_pct: f64) -> CaseResult {
+/// A case's result from the receiving probe's JSON and the CPU of each waiting process (% of
+/// a core).
+fn from_json(case: &str, json: &str, cpu: &[f64]) -> CaseResult {
     CaseResult {
         case: case.to_string(),
         received: field(json, "received"),
@@ -121,7 +125,8 @@ fn from_json(case: &str, json: &str, cpu_pct: f64) -> CaseResult {
         p99: field(json, "p99_us"),
         p999: field(json, "p999_us"),
         max: field(json, "max_us"),
-        cpu_pct,
+        cpu_pct: cpu.iter().sum(),
+        cpu_pct_max_process: cpu.iter().copied().fold(0.0, f64::max),
         rate_hz: 0.0,
     }
 }
@@ -183,7 +188,7 @@ fn iox2(case: &str, wake: &str, secs: f64, rate: f64, n: usize) -> anyhow::Resul
     let cpu = (field(&json, "cpu_s") - c0).max(0.0) / secs * 100.0;
     let _ = publisher.wait();
     let _ = taxel_runtime::ipc::release_prefix(&prefix);
-    Ok(from_json(case, &json, cpu))
+    Ok(from_json(case, &json, &[cpu]))
 }
 
 /// Unix socket or TCP loopback, one hop.
@@ -233,7 +238,98 @@ fn socket(
     if transport == "uds" {
         let _ = std::fs::remove_file(&addr);
     }
-    Ok(from_json(case, &json, cpu))
+    Ok(from_json(case, &json, &[cpu]))
+}
+
+/// The machine's timer floor: how late `clock_nanosleep` to an absolute deadline (timer slack
+/// 1 ns) returns, at `rate` Hz, in this process. Any waiter that sleeps, the adaptive wake-up
+/// included, inherits this tail; the case's "latency" is the overshoot.
+fn timer_overshoot(case: &str, secs: f64, rate: f64) -> anyhow::Result<CaseResult> {
+    use taxel_consumers::age::AgeHistogram;
+    // SAFETY: prctl(PR_SET_TIMERSLACK) only changes this thread's timer slack.
+    unsafe {
+        libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0);
+    }
+    let mut h = AgeHistogram::new();
+    let period = (1e9 / rate) as u64;
+    let n = (secs * rate) as u64;
+    let cpu0 = taxel_runtime::process::cpu_seconds();
+    let mut due = taxel_runtime::now_ns() + period;
+    for _ in 0..n {
+        let ts = libc::timespec {
+            tv_sec: (due / 1_000_000_000) as libc::time_t,
+            tv_nsec: (due % 1_000_000_000) as libc::c_long,
+        };
+        // SAFETY: clock_nanosleep reads the timespec we own; no remaining-time pointer.
+        unsafe {
+            libc::clock_nanosleep(
+                libc::CLOCK_MONOTONIC,
+                libc::TIMER_ABSTIME,
+                &ts,
+                std::ptr::null_mut(),
+            );
+        }
+        h.record_ns(taxel_runtime::now_ns().saturating_sub(due));
+        due += period;
+    }
+    let cpu = (taxel_runtime::process::cpu_seconds() - cpu0) / secs * 100.0;
+    let json = taxel_consumers::age::json_report(n, 0, &h, &[]);
+    Ok(from_json(case, &json, &[cpu]))
+}
+
+/// Unix sockets, two hops: sender -> relay (blocking) -> receiver (blocking), the classic-IPC
+/// shape of our two-hop force path.
+fn uds_two_hops(case: &str, secs: f64, rate: f64, n: usize) -> anyhow::Result<CaseResult> {
+    let sock = |k: usize| {
+        std::env::temp_dir()
+            .join(format!("taxel-bench-{}-{n}-{k}.sock", std::process::id()))
+            .display()
+            .to_string()
+    };
+    let (a, b) = (sock(0), sock(1));
+    let peer = |role: &str, addr: &str, to: Option<&str>| {
+        let mut v = vec![
+            s("bench-peer"),
+            s("--transport"),
+            s("uds"),
+            s("--role"),
+            s(role),
+            s("--addr"),
+            s(addr),
+            s("--rate-hz"),
+            rate.to_string(),
+            s("--seconds"),
+            secs.to_string(),
+        ];
+        if let Some(t) = to {
+            v.extend([s("--to"), s(t)]);
+        }
+        v
+    };
+    let ready = |c: &mut Child| {
+        let mut r = [0u8; 6];
+        if let Some(so) = c.stdout.as_mut() {
+            let _ = so.read_exact(&mut r);
+        }
+    };
+    let mut recv = taxel(&peer("recv-block", &b, None), "unused_")?;
+    ready(&mut recv);
+    let mut relay = taxel(&peer("relay-block", &a, Some(&b)), "unused_")?;
+    ready(&mut relay);
+    let mut send = taxel(&peer("send", &a, None), "unused_")?;
+    let out = output(recv);
+    let _ = send.kill();
+    let _ = send.wait();
+    let relay_out = output(relay);
+    let json = json_line(&out);
+    let cpu = [
+        field(&json_line(&relay_out), "cpu_s") / secs * 100.0,
+        field(&json, "cpu_s") / secs * 100.0,
+    ];
+    for f in [&a, &b] {
+        let _ = std::fs::remove_file(f);
+    }
+    Ok(from_json(case, &json, &cpu))
 }
 
 /// Our force path: publisher -> calibrator -> consumer, both waiting in `wake` mode.
@@ -307,8 +403,8 @@ fn force_path_reloading(
     let _ = calibrator.wait();
     let _ = taxel_runtime::ipc::release_prefix(&prefix);
     let json = json_line(&out);
-    let cpu = (cal_cpu + field(&json, "cpu_s")) / secs * 100.0;
-    Ok(from_json(case, &json, cpu))
+    let cpu = [cal_cpu / secs * 100.0, field(&json, "cpu_s") / secs * 100.0];
+    Ok(from_json(case, &json, &cpu))
 }
 
 /// `sensors` sensors at `rate` Hz each: publishers, calibrators (event) and one probe on all
@@ -350,7 +446,7 @@ fn many(
         &prefix,
     )?;
     wait_nodes(&prefix, sensors + 1);
-    let c0: f64 = cals.iter().map(|c| cpu_of(c.id())).sum();
+    let c0: Vec<f64> = cals.iter().map(|c| cpu_of(c.id())).collect();
     let mut pubs = Vec::new();
     for name in &names {
         pubs.push(taxel(
@@ -368,7 +464,11 @@ fn many(
         )?);
     }
     let out = output(probe);
-    let cal_cpu = (cals.iter().map(|c| cpu_of(c.id())).sum::<f64>() - c0).max(0.0);
+    let mut cpu: Vec<f64> = cals
+        .iter()
+        .zip(&c0)
+        .map(|(c, c0)| (cpu_of(c.id()) - c0).max(0.0) / secs * 100.0)
+        .collect();
     for p in pubs.iter_mut() {
         let _ = p.wait();
     }
@@ -381,8 +481,8 @@ fn many(
     }
     let _ = taxel_runtime::ipc::release_prefix(&prefix);
     let json = json_line(&out);
-    let cpu = (cal_cpu + field(&json, "cpu_s")) / secs * 100.0;
-    Ok(from_json(case, &json, cpu))
+    cpu.push(field(&json, "cpu_s") / secs * 100.0);
+    Ok(from_json(case, &json, &cpu))
 }
 
 fn machine() -> String {
@@ -442,6 +542,10 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
             Box::new(move |n| iox2("iox2_event_1hop", "event", secs, rate, n)),
         ),
         (
+            "timer_wake_overshoot",
+            Box::new(move |_| timer_overshoot("timer_wake_overshoot", secs, rate)),
+        ),
+        (
             "uds_block_1hop",
             Box::new(move |n| socket("uds_block_1hop", "uds", "recv-block", secs, rate, n)),
         ),
@@ -456,6 +560,10 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
         (
             "tcp_spin_1hop",
             Box::new(move |n| socket("tcp_spin_1hop", "tcp", "recv-spin", secs, rate, n)),
+        ),
+        (
+            "uds_block_2hop",
+            Box::new(move |n| uds_two_hops("uds_block_2hop", secs, rate, n)),
         ),
         (
             "force_path_event",
@@ -576,13 +684,23 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
     }
     let m = machine();
     let mut md = format!(
-        "# taxel bench\n\n{m}; {rate} Hz, RawFrame payload ({} bytes), {secs} s per case, separate processes. Age = receive time - capture time (CLOCK_MONOTONIC); force paths are two hops.\n\n| case | rate (Hz) | received | dropped | p50 (us) | p90 (us) | p99 (us) | p99.9 (us) | max (us) | CPU of waiting processes (% core) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        "# taxel bench\n\n{m}; {rate} Hz, RawFrame payload ({} bytes), {secs} s per case, separate processes. Age = receive time - capture time (CLOCK_MONOTONIC); force paths are two hops.\n\n| case | rate (Hz) | received | dropped | p50 (us) | p90 (us) | p99 (us) | p99.9 (us) | max (us) | CPU of waiting processes (% core) | busiest process (% core) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
         peers::MSG
     );
     for c in &cases {
         md.push_str(&format!(
-            "| {} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
-            c.case, c.rate_hz, c.received, c.dropped, c.p50, c.p90, c.p99, c.p999, c.max, c.cpu_pct
+            "| {} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+            c.case,
+            c.rate_hz,
+            c.received,
+            c.dropped,
+            c.p50,
+            c.p90,
+            c.p99,
+            c.p999,
+            c.max,
+            c.cpu_pct,
+            c.cpu_pct_max_process
         ));
     }
     let cases_json: Vec<String> = cases
@@ -590,7 +708,7 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
         .map(|c| {
             let num = |v: f64| if v.is_finite() { format!("{v:.1}") } else { "null".into() };
             format!(
-                "{{\"case\": \"{}\", \"rate_hz\": {}, \"received\": {}, \"p50_us\": {}, \"p90_us\": {}, \"p99_us\": {}, \"p999_us\": {}, \"max_us\": {}, \"dropped\": {}, \"cpu_pct\": {}}}",
+                "{{\"case\": \"{}\", \"rate_hz\": {}, \"received\": {}, \"p50_us\": {}, \"p90_us\": {}, \"p99_us\": {}, \"p999_us\": {}, \"max_us\": {}, \"dropped\": {}, \"cpu_pct\": {}, \"cpu_pct_max_process\": {}}}",
                 c.case,
                 c.rate_hz,
                 num(c.received),
@@ -600,7 +718,8 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
                 num(c.p999),
                 num(c.max),
                 num(c.dropped),
-                num(c.cpu_pct)
+                num(c.cpu_pct),
+                num(c.cpu_pct_max_process)
             )
         })
         .collect();

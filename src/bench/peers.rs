@@ -1,7 +1,9 @@
 //! Socket peers for the transport comparison: a sender writes RawFrame-sized messages
 //! (4 160 bytes, stamped with CLOCK_MONOTONIC just before the write) at a fixed rate over a Unix
 //! domain socket or TCP loopback; a receiver reads them blocking or spinning (non-blocking
-//! reads in a loop) and reports the one-way latency like `taxel latency --json`.
+//! reads in a loop) and reports the one-way latency like `taxel latency --json`. A relay
+//! (blocking reads, forwarding each message to a second receiver) makes the two-hop baseline
+//! for our two-hop force path.
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -21,12 +23,15 @@ pub struct PeerArgs {
     /// `uds` or `tcp`.
     #[arg(long)]
     pub transport: String,
-    /// `send`, `recv-block` or `recv-spin`.
+    /// `send`, `recv-block`, `recv-spin` or `relay-block` (uds only).
     #[arg(long)]
     pub role: String,
     /// Socket path (uds) or port on 127.0.0.1 (tcp).
     #[arg(long)]
     pub addr: String,
+    /// The relay's onward socket path (uds).
+    #[arg(long)]
+    pub to: Option<String>,
     /// Messages per second (sender).
     #[arg(long, default_value_t = 1000.0)]
     pub rate_hz: f64,
@@ -107,6 +112,19 @@ fn recv(mut s: impl Stream, spin: bool, seconds: f64) -> anyhow::Result<String> 
     ))
 }
 
+/// Forwards whole messages from `from` to `to` until either side closes; prints its CPU time
+/// as JSON.
+fn relay(mut from: UnixStream, mut to: UnixStream) -> anyhow::Result<()> {
+    let mut msg = vec![0u8; MSG];
+    while from.read_exact(&mut msg).is_ok() {
+        if to.write_all(&msg).is_err() {
+            break;
+        }
+    }
+    println!("{{\"cpu_s\": {}}}", taxel_runtime::process::cpu_seconds());
+    Ok(())
+}
+
 /// Runs one peer; a receiver prints its JSON report on stdout.
 pub fn run(a: &PeerArgs) -> anyhow::Result<()> {
     let spin = a.role == "recv-spin";
@@ -114,6 +132,17 @@ pub fn run(a: &PeerArgs) -> anyhow::Result<()> {
         ("uds", "send") => {
             let s = connect_retry(|| UnixStream::connect(&a.addr))?;
             send(s, a.rate_hz, a.seconds)
+        }
+        ("uds", "relay-block") => {
+            let to =
+                a.to.as_deref()
+                    .ok_or_else(|| anyhow::anyhow!("relay-block needs --to"))?;
+            let _ = std::fs::remove_file(&a.addr);
+            let l = UnixListener::bind(&a.addr)?;
+            let out = connect_retry(|| UnixStream::connect(to))?;
+            println!("ready");
+            let (s, _) = l.accept()?;
+            relay(s, out)
         }
         ("uds", "recv-block" | "recv-spin") => {
             let _ = std::fs::remove_file(&a.addr);
