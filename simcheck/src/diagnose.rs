@@ -12,8 +12,8 @@ use crate::data::Dataset;
 use crate::locate::{locate, node_stats, spans, Findings};
 use crate::model::{evaluate, max_scan_skew, Config, Context, EffectKind, Thermal};
 use crate::search::{
-    all_params, applicable, base_params, candidate, compare, cross_validate, fit_all, n_params,
-    resid_stats, Cv, Verdict,
+    all_params, applicable, base_params, candidates, compare, cross_validate, fit_all, n_params,
+    resid_stats, Cv, Param, Verdict,
 };
 
 /// The best candidate of a round: effect, its cross-validation, verdict, starts and params.
@@ -424,15 +424,23 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
                 continue;
             }
             let tc = Instant::now();
-            let (starts, params) = candidate(&ctx, &cur, e);
-            let cv = cross_validate(&ctx, &starts, &params, ev_n);
-            let mut v = compare(
-                &cur_cv,
-                &cv,
-                n_params(&ctx, e),
-                resid_stats(&cv.resid, ds.len(), ds.n),
-            );
-            signature_check(ds, e, &cur_cv, &cv, &mut v);
+            // Variants (a latent drift's resolutions): the one the criterion likes best.
+            let mut tried: Option<(Cv, Verdict, Vec<Config>, Vec<Param>)> = None;
+            for (starts, params) in candidates(&ctx, &cur, e) {
+                let Some(first) = starts.first() else {
+                    continue;
+                };
+                let k = n_params(first, e);
+                let cv = cross_validate(&ctx, &starts, &params, ev_n);
+                let mut v = compare(&cur_cv, &cv, k, resid_stats(&cv.resid, ds.len(), ds.n));
+                signature_check(ds, e, &cur_cv, &cv, &mut v);
+                if tried.as_ref().is_none_or(|t| v.ic_gain > t.1.ic_gain) {
+                    tried = Some((cv, v, starts, params));
+                }
+            }
+            let Some((cv, v, starts, params)) = tried else {
+                continue;
+            };
             trials.push(Trial {
                 round,
                 effect: e.name().to_string(),
@@ -472,7 +480,7 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
             let mut v = compare(
                 &cv_minus,
                 &cur_cv,
-                n_params(&ctx, e),
+                n_params(&cur, e),
                 resid_stats(&cur_cv.resid, ds.len(), ds.n),
             );
             signature_check(ds, e, &cv_minus, &cur_cv, &mut v);
@@ -692,6 +700,34 @@ mod tests {
             y: vec![0.0; len],
             map: ReadoutMap::Resistance,
         }
+    }
+
+    #[test]
+    fn a_latent_drift_is_tried_at_every_resolution_and_charged_for_its_knots() {
+        let ds = presses();
+        let ctx = Context::new(&ds);
+        let full = crate::model::latent_knots(&ds).len();
+        let res = crate::model::latent_resolutions(&ds);
+        assert_eq!(res.first(), Some(&2));
+        assert_eq!(res.last(), Some(&full));
+        assert!(res.windows(2).all(|w| w[0] < w[1]), "{res:?}");
+        let variants = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::ThermalDrift);
+        assert_eq!(variants.len(), res.len());
+        for ((starts, _), k) in variants.iter().zip(&res) {
+            let cfg = &starts[0];
+            match &cfg.thermal {
+                Some(Thermal::Latent { knots_s, values }) => {
+                    assert_eq!((knots_s.len(), values.len()), (*k, *k));
+                }
+                other => panic!("not latent: {other:?}"),
+            }
+            assert_eq!(n_params(cfg, EffectKind::ThermalDrift).global, *k);
+        }
+        // Other effects have one variant.
+        assert_eq!(
+            candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Creep).len(),
+            1
+        );
     }
 
     fn cv(resid: Vec<f64>) -> Cv {

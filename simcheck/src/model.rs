@@ -335,6 +335,25 @@ pub fn max_scan_skew(ds: &Dataset) -> f64 {
 /// Latent thermal knots for a recording: about one per 60 s (at least 4, at most 24).
 pub fn latent_knots(ds: &Dataset) -> Vec<f64> {
     let k = ((ds.duration() / 60.0).round() as usize + 1).clamp(4, 24);
+    latent_knots_n(ds, k)
+}
+
+/// The resolutions a latent drift is tried at: 2 knots (a straight drift), 3, 5, 8, ... up to
+/// [`latent_knots`] (one per minute). The criterion picks among them, so a drift that is nearly
+/// straight pays for two parameters, not one per minute.
+pub fn latent_resolutions(ds: &Dataset) -> Vec<usize> {
+    let full = latent_knots(ds).len();
+    let mut v: Vec<usize> = [2, 3, 5, 8, 12, 18]
+        .into_iter()
+        .filter(|&k| k < full)
+        .collect();
+    v.push(full);
+    v
+}
+
+/// `k` evenly spaced knots over the recording.
+pub fn latent_knots_n(ds: &Dataset, k: usize) -> Vec<f64> {
+    let k = k.max(2);
     let t0 = ds.t[0];
     let span = ds.duration().max(1e-9);
     (0..k)

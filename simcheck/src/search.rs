@@ -5,7 +5,8 @@
 //! parameters, and by a minimum relative amount.
 
 use crate::model::{
-    evaluate, evaluate_with, latent_knots, Config, Context, EffectKind, Eval, Thermal,
+    evaluate, evaluate_with, latent_knots, latent_knots_n, latent_resolutions, Config, Context,
+    EffectKind, Eval, Thermal,
 };
 
 /// Acceptance thresholds (documented in docs/simcheck.md).
@@ -362,6 +363,7 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
                 }
                 params.extend([Param::ThermAlpha, Param::ThermLnTau]);
             } else {
+                // The resolution is chosen among `latent_resolutions` by `candidates`.
                 let knots = latent_knots(ds);
                 let mut s = cur.clone();
                 s.thermal = Some(Thermal::Latent {
@@ -432,6 +434,34 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
     (starts, params)
 }
 
+/// The variants of candidate `e` to try: one, except a latent thermal drift, which is tried
+/// at each resolution of [`latent_resolutions`] (the caller keeps the variant the criterion
+/// likes best).
+pub fn candidates(ctx: &Context, cur: &Config, e: EffectKind) -> Vec<(Vec<Config>, Vec<Param>)> {
+    let (starts, params) = candidate(ctx, cur, e);
+    if e != EffectKind::ThermalDrift || ctx.ds.temp.is_some() {
+        return vec![(starts, params)];
+    }
+    latent_resolutions(ctx.ds)
+        .into_iter()
+        .map(|k| {
+            let knots = latent_knots_n(ctx.ds, k);
+            let s: Vec<Config> = starts
+                .iter()
+                .map(|s| {
+                    let mut s = s.clone();
+                    s.thermal = Some(Thermal::Latent {
+                        values: vec![1.0; knots.len()],
+                        knots_s: knots.clone(),
+                    });
+                    s
+                })
+                .collect();
+            (s, params.clone())
+        })
+        .collect()
+}
+
 /// All parameters of a configuration (for the joint refit after acceptance).
 pub fn all_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
     let mut p = base_params(cfg);
@@ -475,18 +505,15 @@ pub struct ParamCount {
 }
 
 /// Parameters an effect adds.
-pub fn n_params(ctx: &Context, e: EffectKind) -> ParamCount {
-    let ds = ctx.ds;
+/// Parameters effect `e` adds to `cfg` (which holds it: a latent drift's knots count).
+pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
     let (global, per_node) = match e {
         EffectKind::Creep => (4, 0),
         EffectKind::Hysteresis => (2, 1),
-        EffectKind::ThermalDrift => {
-            if ds.temp.is_some() {
-                (2, 0)
-            } else {
-                (latent_knots(ds).len(), 0)
-            }
-        }
+        EffectKind::ThermalDrift => match &cfg.thermal {
+            Some(Thermal::Latent { knots_s, .. }) => (knots_s.len(), 0),
+            _ => (2, 0),
+        },
         EffectKind::CurvatureBaseline => (0, 1),
         EffectKind::CurvatureSensitivity | EffectKind::Saturation | EffectKind::Crosstalk => (1, 0),
         EffectKind::ScanSkew => (2, 0),
