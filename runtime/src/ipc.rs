@@ -125,6 +125,7 @@ impl Ipc {
             publisher,
             notifier,
             name,
+            hand_over: HandOver::new(),
         })
     }
 
@@ -158,6 +159,62 @@ pub struct StreamPublisher<T: Debug + ZeroCopySend + 'static> {
     publisher: Publisher<ipc::Service, T, ()>,
     notifier: Notifier<ipc::Service>,
     name: String,
+    hand_over: HandOver,
+}
+
+/// When [`StreamPublisher::send_handing_over`] yields. A yield is only cheap when the core is
+/// shared with a poller (which yields back at once) or with nobody; next to CPU-bound work it
+/// gives that work the rest of its time slice (about a millisecond), which would delay the
+/// notification for event-driven subscribers and the sender's own next frame. So two slow
+/// yields among the last 16 switch the hand-over off for a while, doubling the pause each
+/// time. (One slow yield alone is the host descheduling the VM now and then.)
+#[derive(Debug)]
+struct HandOver {
+    off_until_ns: std::cell::Cell<u64>,
+    pause_ns: std::cell::Cell<u64>,
+    /// One bit per recent yield, set when it was slow.
+    slow: std::cell::Cell<u16>,
+}
+
+impl HandOver {
+    /// A yield longer than this (ns) gave the core to something that is not a poller.
+    const SLOW_NS: u64 = 300_000;
+    const MIN_PAUSE_NS: u64 = 100_000_000;
+    const MAX_PAUSE_NS: u64 = 10_000_000_000;
+
+    fn new() -> HandOver {
+        HandOver {
+            off_until_ns: std::cell::Cell::new(0),
+            pause_ns: std::cell::Cell::new(Self::MIN_PAUSE_NS),
+            slow: std::cell::Cell::new(0),
+        }
+    }
+
+    /// Yields unless paused.
+    fn maybe_yield(&self) {
+        let t0 = crate::now_ns();
+        if t0 < self.off_until_ns.get() {
+            return;
+        }
+        std::thread::yield_now();
+        self.record(t0, crate::now_ns().saturating_sub(t0));
+    }
+
+    /// Books a yield started at `t0` that took `took` ns.
+    fn record(&self, t0: u64, took: u64) {
+        let slow = (self.slow.get() << 1) | u16::from(took > Self::SLOW_NS);
+        if slow.count_ones() >= 2 {
+            let pause = self.pause_ns.get();
+            self.off_until_ns.set(t0 + took + pause);
+            self.pause_ns.set((pause * 2).min(Self::MAX_PAUSE_NS));
+            self.slow.set(0);
+        } else {
+            if slow == 0 {
+                self.pause_ns.set(Self::MIN_PAUSE_NS);
+            }
+            self.slow.set(slow);
+        }
+    }
 }
 
 impl<T: Debug + ZeroCopySend + Copy + 'static> StreamPublisher<T> {
@@ -172,10 +229,11 @@ impl<T: Debug + ZeroCopySend + Copy + 'static> StreamPublisher<T> {
     /// Like [`StreamPublisher::send`], but yields the CPU between making the sample visible
     /// and waking the event-driven subscribers: a subscriber polling on this core (the
     /// adaptive wake-up) takes the sample now instead of after the notification's system
-    /// call. Costs a `sched_yield` (well under a microsecond when nobody else wants the core).
+    /// call. Costs a `sched_yield` (well under a microsecond when nobody else wants the core);
+    /// pauses itself when the core is shared with CPU-bound work (see `HandOver`).
     pub fn send_handing_over(&self, value: &T) -> Result<usize, IpcError> {
         let n = self.publish(value)?;
-        std::thread::yield_now();
+        self.hand_over.maybe_yield();
         self.notify()?;
         Ok(n)
     }
@@ -368,4 +426,39 @@ pub fn release_prefix(prefix: &str) -> Result<bool, IpcError> {
     // SAFETY: no node of this prefix exists (checked above), so no process uses the segment.
     unsafe { iceoryx2::testing::remove_global_mgmt_segment::<ipc::Service>(&config) }
         .map_err(|e| err("removing the prefix's management segment", e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::HandOver;
+
+    #[test]
+    fn hand_over_pauses_after_two_slow_yields_and_backs_off() {
+        let h = HandOver::new();
+        let (fast, slow) = (2_000, 900_000);
+        // One slow yield (the host stalled the VM once) does not pause.
+        h.record(1_000, slow);
+        assert_eq!(h.off_until_ns.get(), 0);
+        for i in 0..15 {
+            h.record(2_000 + i, fast);
+        }
+        // Pushed out of the 16-yield window: another single slow one still does not pause.
+        h.record(3_000, slow);
+        assert_eq!(h.off_until_ns.get(), 0);
+        // A second within the window does (CPU-bound work shares the core).
+        h.record(4_000, slow);
+        assert_eq!(h.off_until_ns.get(), 4_000 + slow + HandOver::MIN_PAUSE_NS);
+        // Still CPU-bound after the pause: twice as long.
+        h.record(1_000_000_000, slow);
+        h.record(1_001_000_000, slow);
+        assert_eq!(
+            h.off_until_ns.get(),
+            1_001_000_000 + slow + 2 * HandOver::MIN_PAUSE_NS
+        );
+        // Sixteen fast yields in a row reset the pause length.
+        for i in 0..16 {
+            h.record(2_000_000_000 + i, fast);
+        }
+        assert_eq!(h.pause_ns.get(), HandOver::MIN_PAUSE_NS);
+    }
 }
