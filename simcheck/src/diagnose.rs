@@ -104,13 +104,18 @@ fn effect_params(
     let mut p = BTreeMap::new();
     match e {
         EffectKind::Creep => {
-            if let Some(terms) = cfg.creep {
-                let mut t = terms;
+            if let Some(terms) = &cfg.creep {
+                let mut t = terms.clone();
                 t.sort_by(|a, b| a.1.total_cmp(&b.1));
-                p.insert("amplitude_fast".into(), t[0].0);
-                p.insert("tau_fast_s".into(), t[0].1);
-                p.insert("amplitude_slow".into(), t[1].0);
-                p.insert("tau_slow_s".into(), t[1].1);
+                let names: &[&str] = if t.len() == 3 {
+                    &["fast", "mid", "slow"]
+                } else {
+                    &["fast", "slow"]
+                };
+                for (name, (c, tau)) in names.iter().zip(&t) {
+                    p.insert(format!("amplitude_{name}"), *c);
+                    p.insert(format!("tau_{name}_s"), *tau);
+                }
             }
         }
         EffectKind::Hysteresis => {
@@ -703,7 +708,7 @@ mod tests {
     }
 
     #[test]
-    fn a_latent_drift_is_tried_at_every_resolution_and_charged_for_its_knots() {
+    fn variants_are_tried_and_charged_for_their_parameters() {
         let ds = presses();
         let ctx = Context::new(&ds);
         let full = crate::model::latent_knots(&ds).len();
@@ -723,9 +728,18 @@ mod tests {
             }
             assert_eq!(n_params(cfg, EffectKind::ThermalDrift).global, *k);
         }
+        // Creep: two Prony terms, or three (charged two parameters more).
+        let creep = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Creep);
+        assert_eq!(creep.len(), 2);
+        for ((starts, params), terms) in creep.iter().zip([2, 3]) {
+            let cfg = &starts[0];
+            assert_eq!(cfg.creep.as_ref().map(Vec::len), Some(terms));
+            assert_eq!(n_params(cfg, EffectKind::Creep).global, 2 * terms);
+            assert!(params.contains(&Param::CreepLnTau(terms - 1)));
+        }
         // Other effects have one variant.
         assert_eq!(
-            candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Creep).len(),
+            candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Hysteresis).len(),
             1
         );
     }

@@ -69,11 +69,12 @@ pub struct Config {
     pub r_floor_ohm: f64,
     pub sat_in_base: bool,
     pub saturation: bool,
-    /// Creep as two Prony terms `(c, tau_s)`: `L + sum c lowpass_tau(L)` (a fast and a slow
-    /// one; together they follow log-time creep over two decades). The amplitudes are
+    /// Creep as two or three Prony terms `(c, tau_s)`: `L + sum c lowpass_tau(L)` (fast and
+    /// slow, and a middle one when the criterion pays for it: log-time creep spans decades).
+    /// The amplitudes are
     /// non-negative (under a held force the sensor's deformation, and so its conductance, only
     /// grows) and each `tau` is at most `Context::creep_tau_max`.
-    pub creep: Option<[(f64, f64); 2]>,
+    pub creep: Option<Vec<(f64, f64)>>,
     /// Hysteresis: half-width `r` (N) of the play operators; the amplitudes are per node.
     pub hysteresis: Option<f64>,
     /// Hysteresis loop shape: the gap is `gap_r + mix gap_4r` (0: sharp corners; larger:
@@ -284,6 +285,9 @@ pub struct Eval {
     pub train_sse: f64,
 }
 
+/// Most Prony terms a creep model has.
+pub const MAX_CREEP_TERMS: usize = 3;
+
 /// The load transform: creep, then the power law. (Hysteresis enters as its own per-node
 /// term, see [`play_gap`].)
 pub fn load_series(
@@ -294,12 +298,12 @@ pub fn load_series(
     out: &mut Vec<f64>,
 ) {
     out.clear();
-    let mut s = [0.0f64; 2];
+    let mut s = [0.0f64; MAX_CREEP_TERMS];
     for (i, fi) in f.enumerate() {
         let mut l = fi.max(0.0);
-        if let Some(terms) = cfg.creep {
+        if let Some(terms) = &cfg.creep {
             let base = l;
-            for (st, (c, tau)) in s.iter_mut().zip(terms) {
+            for (st, &(c, tau)) in s.iter_mut().zip(terms) {
                 if i > 0 {
                     *st += (base - *st) * (1.0 - (-dt[i] / tau.min(tau_max)).exp());
                 }

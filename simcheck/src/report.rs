@@ -120,7 +120,7 @@ pub fn extended_model(
     c.baseline_g2_m2 = 0.0;
     c.pattern_quad_m = 0.0;
     c.pattern_lin_m = 0.0;
-    m.creep = cfg.creep.map(|terms| Creep {
+    m.creep = cfg.creep.as_ref().map(|terms| Creep {
         amplitudes: terms.iter().map(|t| t.0.clamp(-0.99, 0.99)).collect(),
         tau_s: terms.iter().map(|t| t.1).collect(),
     });

@@ -38,8 +38,12 @@ impl Param {
         match self {
             Param::LnExponent => c.exponent.ln(),
             Param::LnFloor => c.r_floor_ohm.max(1e-9).ln(),
-            Param::CreepC(j) => c.creep.map_or(0.0, |v| v[j].0),
-            Param::CreepLnTau(j) => c.creep.map_or(0.0, |v| v[j].1.ln()),
+            Param::CreepC(j) => c.creep.as_ref().and_then(|v| v.get(j)).map_or(0.0, |t| t.0),
+            Param::CreepLnTau(j) => c
+                .creep
+                .as_ref()
+                .and_then(|v| v.get(j))
+                .map_or(0.0, |t| t.1.ln()),
             Param::HystLnR => c.hysteresis.map_or(0.0, |r| r.max(1e-9).ln()),
             Param::HystMix => c.hyst_mix,
             Param::ThermAlpha => match &c.thermal {
@@ -63,13 +67,13 @@ impl Param {
             Param::LnExponent => c.exponent = v.clamp(0.2f64.ln(), 3f64.ln()).exp().clamp(0.2, 3.0),
             Param::LnFloor => c.r_floor_ohm = v.clamp(-30.0, 30.0).exp(),
             Param::CreepC(j) => {
-                if let Some(cr) = &mut c.creep {
-                    cr[j].0 = v.clamp(0.0, 2.0);
+                if let Some(t) = c.creep.as_mut().and_then(|cr| cr.get_mut(j)) {
+                    t.0 = v.clamp(0.0, 2.0);
                 }
             }
             Param::CreepLnTau(j) => {
-                if let Some(cr) = &mut c.creep {
-                    cr[j].1 = v.clamp(0.05f64.ln(), 5000f64.ln()).exp();
+                if let Some(t) = c.creep.as_mut().and_then(|cr| cr.get_mut(j)) {
+                    t.1 = v.clamp(0.05f64.ln(), 5000f64.ln()).exp();
                 }
             }
             Param::HystLnR => {
@@ -327,7 +331,7 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
                 }
                 for c in [0.02, 0.06] {
                     let mut s = cur.clone();
-                    s.creep = Some([(c, t1), (c, t2.min(dur))]);
+                    s.creep = Some(vec![(c, t1), (c, t2.min(dur))]);
                     starts.push(s);
                 }
             }
@@ -434,11 +438,29 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
     (starts, params)
 }
 
-/// The variants of candidate `e` to try: one, except a latent thermal drift, which is tried
-/// at each resolution of [`latent_resolutions`] (the caller keeps the variant the criterion
-/// likes best).
+/// The variants of candidate `e` to try: one, except creep, which is also tried with a third
+/// Prony term between the other two, and a latent thermal drift, which is tried at each
+/// resolution of [`latent_resolutions`] (the caller keeps the variant the criterion likes
+/// best).
 pub fn candidates(ctx: &Context, cur: &Config, e: EffectKind) -> Vec<(Vec<Config>, Vec<Param>)> {
     let (starts, params) = candidate(ctx, cur, e);
+    if e == EffectKind::Creep {
+        let three: Vec<Config> = starts
+            .iter()
+            .map(|s| {
+                let mut s = s.clone();
+                if let Some(t) = &mut s.creep {
+                    if let [(c1, t1), (c2, t2)] = t[..] {
+                        *t = vec![(c1, t1), (0.5 * (c1 + c2), (t1 * t2).sqrt()), (c2, t2)];
+                    }
+                }
+                s
+            })
+            .collect();
+        let mut p3 = params.clone();
+        p3.extend([Param::CreepC(2), Param::CreepLnTau(2)]);
+        return vec![(starts, params), (three, p3)];
+    }
     if e != EffectKind::ThermalDrift || ctx.ds.temp.is_some() {
         return vec![(starts, params)];
     }
@@ -465,13 +487,10 @@ pub fn candidates(ctx: &Context, cur: &Config, e: EffectKind) -> Vec<(Vec<Config
 /// All parameters of a configuration (for the joint refit after acceptance).
 pub fn all_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
     let mut p = base_params(cfg);
-    if cfg.creep.is_some() {
-        p.extend([
-            Param::CreepC(0),
-            Param::CreepLnTau(0),
-            Param::CreepC(1),
-            Param::CreepLnTau(1),
-        ]);
+    if let Some(terms) = &cfg.creep {
+        for j in 0..terms.len() {
+            p.extend([Param::CreepC(j), Param::CreepLnTau(j)]);
+        }
     }
     if cfg.hysteresis.is_some() {
         p.push(Param::HystLnR);
@@ -508,7 +527,7 @@ pub struct ParamCount {
 /// Parameters effect `e` adds to `cfg` (which holds it: a latent drift's knots count).
 pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
     let (global, per_node) = match e {
-        EffectKind::Creep => (4, 0),
+        EffectKind::Creep => (2 * cfg.creep.as_ref().map_or(2, Vec::len), 0),
         EffectKind::Hysteresis => (2, 1),
         EffectKind::ThermalDrift => match &cfg.thermal {
             Some(Thermal::Latent { knots_s, .. }) => (knots_s.len(), 0),
