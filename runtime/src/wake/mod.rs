@@ -1,11 +1,15 @@
-//! How a consumer waits for its next sample. `event`: sleep in a WaitSet until the publisher's
-//! notification (the default; about 30-40 us of wake-up on a VM). `busy`: poll the subscriber
-//! in a loop, yielding between polls (lowest latency, a whole core). `adaptive`: learn the stream's rhythm (capture
-//! grid, transport hop, our own sleep overshoot; see `rhythm`), sleep (timer slack 1 ns) until
-//! a high quantile of the overshoot still lands before the earliest expected arrival, poll with
-//! `sched_yield` until the sample comes, within a token-bucket budget of 7 % of a core, and
-//! fall back to the event when the budget runs out: busy-poll latency at a bounded share of a
-//! core.
+//! How a consumer waits for its next sample.
+//! - `event`: sleep in a WaitSet until the publisher's notification (the default; about
+//!   30-40 us of wake-up on a VM).
+//! - `busy`: poll the subscriber in a loop, yielding between polls (lowest latency, a whole
+//!   core).
+//! - `adaptive`: learn the stream's rhythm (capture grid, transport hop, our own sleep
+//!   overshoot; see [`rhythm`]), sleep (timer slack 1 ns) until a high quantile of the
+//!   overshoot still lands before the earliest expected arrival, poll with `sched_yield` until
+//!   the sample comes, within a token-bucket budget of 8 % of a core, and fall back to the
+//!   event when the budget runs out: busy-poll latency at a bounded share of a core.
+
+pub mod rhythm;
 
 use std::time::{Duration, Instant};
 
@@ -21,8 +25,6 @@ pub enum WakeMode {
     Busy,
     Adaptive,
 }
-
-pub mod rhythm;
 
 pub use rhythm::Learned;
 use rhythm::Rhythm;
