@@ -122,7 +122,7 @@ pub struct Rhythm {
     base: u64,
     base_seq: u64,
     /// The newest sample: sequence number and capture time.
-    last: Option<(i64, u64)>,
+    last: Option<(u64, u64)>,
     period: f64,
     /// Grid: index `anchor_k` falls at `base + anchor_t`.
     anchor_k: i64,
@@ -177,10 +177,10 @@ impl Rhythm {
     /// Sample `seq` (the publisher's sequence number, one per period) captured at `capture`
     /// (ns) was received.
     pub fn captured(&mut self, seq: u64, capture: u64) {
-        if let Some((k, c)) = self.last {
-            let back = seq as i64 <= k || capture <= c;
-            let gap = capture - c;
-            if back || (self.period > 0.0 && gap as f64 > RESET_PERIODS * self.period) {
+        if let Some((last_seq, c)) = self.last {
+            let back = seq <= last_seq || capture <= c;
+            let gap = capture.saturating_sub(c) as f64;
+            if back || (self.period > 0.0 && gap > RESET_PERIODS * self.period) {
                 // A restarted publisher (sequence or clock went back) or a long pause.
                 self.reset_grid();
             }
@@ -189,11 +189,12 @@ impl Rhythm {
             self.base = capture;
             self.base_seq = seq;
         }
-        let k = seq as i64;
-        self.cap[self.cap_next] = ((seq - self.base_seq) as i64, (capture - self.base) as f64);
+        // Both differences are non-negative: the grid restarted on anything going back.
+        let k = (seq - self.base_seq).min(i64::MAX as u64) as i64;
+        self.cap[self.cap_next] = (k, (capture - self.base) as f64);
         self.cap_next = (self.cap_next + 1) % N;
         self.cap_len = (self.cap_len + 1).min(N);
-        self.last = Some((k, capture));
+        self.last = Some((seq, capture));
         self.since_fit += 1;
         if self.cap_len >= MIN_CAPTURES
             && (self.since_fit >= REFIT_EVERY || self.period == 0.0 || self.cap_len < N / 2)
@@ -277,11 +278,11 @@ impl Rhythm {
     /// When to wake for the sample after the last one seen, or None while the stream's rhythm
     /// is unknown or too irregular to poll for.
     pub fn plan(&self) -> Option<Plan> {
-        let (k, _) = self.last?;
+        let (seq, _) = self.last?;
         if self.period <= 0.0 || self.spread > MAX_SPREAD * self.period {
             return None;
         }
-        let next = k + 1 - self.base_seq as i64;
+        let next = (seq - self.base_seq).min(i64::MAX as u64 - 1) as i64 + 1;
         let grid = self.base as f64 + self.anchor_t + self.period * (next - self.anchor_k) as f64;
         let arrival = grid + self.hop_lo;
         Some(Plan {
@@ -426,6 +427,28 @@ mod tests {
             m.captured(k, late_capture(&mut r, k));
         }
         assert!(m.plan().is_some(), "{:?}", m.learned());
+    }
+
+    #[test]
+    fn a_clock_or_sequence_going_back_restarts_learning() {
+        let mut r = Rng(23);
+        let mut m = Rhythm::new();
+        for k in 0..100 {
+            m.captured(k, late_capture(&mut r, k));
+        }
+        assert!(m.plan().is_some());
+        // A capture time from before the last one (another publisher's clock), then a sequence
+        // number from near the top of the range: neither panics, both restart the grid.
+        m.captured(100, 1_000);
+        assert_eq!(m.plan(), None);
+        m.captured(u64::MAX - 5, 2_000);
+        m.captured(3, 3_000);
+        assert_eq!(m.plan(), None);
+        for k in 4..40u64 {
+            m.captured(k, 3_000 + (k - 3) * 1_000_000);
+        }
+        let p = m.period_ns().expect("relearned");
+        assert!((p - 1e6).abs() < 1.0, "period {p}");
     }
 
     #[test]
