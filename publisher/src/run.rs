@@ -69,10 +69,7 @@ pub fn publish(
     let mut gap_first = taxel_runtime::process::restarted();
     // Pace with ~1 us precision instead of the default 50 us timer slack: consumers that
     // predict the next frame (adaptive wake-up) rely on a regular stream.
-    // SAFETY: prctl(PR_SET_TIMERSLACK) only changes this thread's timer slack.
-    unsafe {
-        libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0);
-    }
+    taxel_runtime::clock::fine_timer_slack();
     info!(sensor, rows, cols, "publisher ready on {}", raw.name());
     while !shutdown.requested() {
         if max_seconds.is_some_and(|m| start.elapsed().as_secs_f64() >= m) {

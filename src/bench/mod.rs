@@ -246,29 +246,14 @@ fn socket(
 /// included, inherits this tail; the case's "latency" is the overshoot.
 fn timer_overshoot(case: &str, secs: f64, rate: f64) -> anyhow::Result<CaseResult> {
     use taxel_consumers::age::AgeHistogram;
-    // SAFETY: prctl(PR_SET_TIMERSLACK) only changes this thread's timer slack.
-    unsafe {
-        libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0);
-    }
+    taxel_runtime::clock::fine_timer_slack();
     let mut h = AgeHistogram::new();
     let period = (1e9 / rate) as u64;
     let n = (secs * rate) as u64;
     let cpu0 = taxel_runtime::process::cpu_seconds();
     let mut due = taxel_runtime::now_ns() + period;
     for _ in 0..n {
-        let ts = libc::timespec {
-            tv_sec: (due / 1_000_000_000) as libc::time_t,
-            tv_nsec: (due % 1_000_000_000) as libc::c_long,
-        };
-        // SAFETY: clock_nanosleep reads the timespec we own; no remaining-time pointer.
-        unsafe {
-            libc::clock_nanosleep(
-                libc::CLOCK_MONOTONIC,
-                libc::TIMER_ABSTIME,
-                &ts,
-                std::ptr::null_mut(),
-            );
-        }
+        taxel_runtime::clock::sleep_until_ns(due);
         h.record_ns(taxel_runtime::now_ns().saturating_sub(due));
         due += period;
     }

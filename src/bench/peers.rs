@@ -59,10 +59,7 @@ fn send(mut s: impl Stream, rate_hz: f64, seconds: f64) -> anyhow::Result<()> {
     let period = Duration::from_secs_f64(1.0 / rate_hz);
     let start = Instant::now();
     let mut seq = 0u64;
-    // SAFETY: prctl(PR_SET_TIMERSLACK) only changes this thread's timer slack.
-    unsafe {
-        libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0);
-    }
+    taxel_runtime::clock::fine_timer_slack();
     while start.elapsed().as_secs_f64() < seconds {
         let due = start + period * seq as u32;
         if let Some(d) = due.checked_duration_since(Instant::now()) {

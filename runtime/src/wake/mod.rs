@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
 
+use crate::clock::{fine_timer_slack, sleep_until_ns as sleep_until};
 use crate::ipc::{self, IpcError, StreamSubscriber};
 use crate::{now_ns, Shutdown};
 
@@ -84,33 +85,6 @@ impl Budget {
     /// Debt is capped at one full bucket, so a long stall is paid back within a few periods.
     fn spend(&mut self, ns: u64) {
         self.tokens = (self.tokens - ns as f64).max(-TOKENS_MAX_NS);
-    }
-}
-
-/// Sets this thread's timer slack to 1 ns, so sleeps end within a few microseconds of their
-/// target instead of the default 50 us.
-fn fine_timer_slack() {
-    // SAFETY: prctl(PR_SET_TIMERSLACK) only changes this thread's timer slack.
-    unsafe {
-        libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0);
-    }
-}
-
-/// Sleeps until `at` (ns, CLOCK_MONOTONIC) or until a signal interrupts.
-fn sleep_until(at: u64) {
-    let ts = libc::timespec {
-        tv_sec: (at / 1_000_000_000) as libc::time_t,
-        tv_nsec: (at % 1_000_000_000) as libc::c_long,
-    };
-    // SAFETY: clock_nanosleep reads the timespec we own; the remaining-time pointer is unused
-    // with TIMER_ABSTIME and may be null.
-    unsafe {
-        libc::clock_nanosleep(
-            libc::CLOCK_MONOTONIC,
-            libc::TIMER_ABSTIME,
-            &ts,
-            std::ptr::null_mut(),
-        );
     }
 }
 
