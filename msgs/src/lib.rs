@@ -330,13 +330,14 @@ impl Stream {
         }
     }
     /// Samples each subscriber can hold before the oldest is overwritten: the time a reader may
-    /// be descheduled without losing anything. Raw and force streams run at up to kHz rates and
-    /// get 256 (256 ms at 1 kHz: a restarting neighbour loading its model stalls a reader for
-    /// 50-60 ms on a 2-core machine); curvature estimates come at a few Hz.
+    /// be descheduled without losing anything. Streams with one sample per frame (raw, force,
+    /// and reference, which the sim and replay sources send with every frame) run at up to kHz
+    /// rates and get 256 (256 ms at 1 kHz: a restarting neighbour loading its model stalls a
+    /// reader for 50-60 ms on a 2-core machine); curvature estimates come at a few Hz.
     pub fn buffer(self) -> usize {
         match self {
-            Stream::Raw | Stream::Force => 256,
-            Stream::Curvature | Stream::Reference => 64,
+            Stream::Raw | Stream::Force | Stream::Reference => 256,
+            Stream::Curvature => 64,
         }
     }
 }
@@ -358,6 +359,16 @@ mod tests {
             assert!(sensor_id_bytes(bad).is_err(), "{bad:?} accepted");
         }
         assert!(sensor_id_bytes(&"z".repeat(31)).is_ok());
+    }
+
+    #[test]
+    fn streams_with_a_sample_per_frame_buffer_as_much_as_raw() {
+        // The logger takes raw and reference rows side by side: a stall that raw survives must
+        // not lose references.
+        for s in [Stream::Force, Stream::Reference] {
+            assert_eq!(s.buffer(), Stream::Raw.buffer(), "{s:?}");
+        }
+        assert!(Stream::Curvature.buffer() < Stream::Raw.buffer());
     }
 
     #[test]
