@@ -308,7 +308,9 @@ pub fn run(
                 frame.flags |= raw_flags::RAIL;
             }
             frame.t_capture_ns = t;
-            raw.send(&frame)?;
+            // As the sim source's publish loop does: a poller on this core takes the frame
+            // before the notification.
+            raw.send_handing_over(&frame)?;
             stats.frames += 1;
             l.last_frame = Instant::now();
             if l.stalled {
