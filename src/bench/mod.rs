@@ -191,6 +191,42 @@ fn iox2(case: &str, wake: &str, secs: f64, rate: f64, n: usize) -> anyhow::Resul
     Ok(from_json(case, &json, &[cpu]))
 }
 
+/// Arguments of a `bench-peer` process.
+fn peer_args(
+    transport: &str,
+    role: &str,
+    addr: &str,
+    to: Option<&str>,
+    rate: f64,
+    secs: f64,
+) -> Vec<String> {
+    let mut v = vec![
+        s("bench-peer"),
+        s("--transport"),
+        s(transport),
+        s("--role"),
+        s(role),
+        s("--addr"),
+        s(addr),
+        s("--rate-hz"),
+        rate.to_string(),
+        s("--seconds"),
+        secs.to_string(),
+    ];
+    if let Some(t) = to {
+        v.extend([s("--to"), s(t)]);
+    }
+    v
+}
+
+/// Waits until a listening peer prints "ready" (or exits).
+fn wait_ready(c: &mut Child) {
+    let mut ready = [0u8; 6];
+    if let Some(so) = c.stdout.as_mut() {
+        let _ = so.read_exact(&mut ready);
+    }
+}
+
 /// Unix socket or TCP loopback, one hop.
 fn socket(
     case: &str,
@@ -208,28 +244,15 @@ fn socket(
     } else {
         (41000 + (std::process::id() % 1000) as u16 * 10 + n as u16).to_string()
     };
-    let peer = |role: &str| {
-        vec![
-            s("bench-peer"),
-            s("--transport"),
-            s(transport),
-            s("--role"),
-            s(role),
-            s("--addr"),
-            addr.clone(),
-            s("--rate-hz"),
-            rate.to_string(),
-            s("--seconds"),
-            secs.to_string(),
-        ]
-    };
-    let mut recv = taxel(&peer(role), "unused_")?;
-    // Wait for "ready".
-    let mut ready = [0u8; 6];
-    if let Some(so) = recv.stdout.as_mut() {
-        let _ = so.read_exact(&mut ready);
-    }
-    let mut send = taxel(&peer("send"), "unused_")?;
+    let mut recv = taxel(
+        &peer_args(transport, role, &addr, None, rate, secs),
+        "unused_",
+    )?;
+    wait_ready(&mut recv);
+    let mut send = taxel(
+        &peer_args(transport, "send", &addr, None, rate, secs),
+        "unused_",
+    )?;
     let out = output(recv);
     let _ = send.kill();
     let _ = send.wait();
@@ -272,36 +295,15 @@ fn uds_two_hops(case: &str, secs: f64, rate: f64, n: usize) -> anyhow::Result<Ca
             .to_string()
     };
     let (a, b) = (sock(0), sock(1));
-    let peer = |role: &str, addr: &str, to: Option<&str>| {
-        let mut v = vec![
-            s("bench-peer"),
-            s("--transport"),
-            s("uds"),
-            s("--role"),
-            s(role),
-            s("--addr"),
-            s(addr),
-            s("--rate-hz"),
-            rate.to_string(),
-            s("--seconds"),
-            secs.to_string(),
-        ];
-        if let Some(t) = to {
-            v.extend([s("--to"), s(t)]);
-        }
-        v
-    };
-    let ready = |c: &mut Child| {
-        let mut r = [0u8; 6];
-        if let Some(so) = c.stdout.as_mut() {
-            let _ = so.read_exact(&mut r);
-        }
-    };
-    let mut recv = taxel(&peer("recv-block", &b, None), "unused_")?;
-    ready(&mut recv);
-    let mut relay = taxel(&peer("relay-block", &a, Some(&b)), "unused_")?;
-    ready(&mut relay);
-    let mut send = taxel(&peer("send", &a, None), "unused_")?;
+    let mut recv = taxel(
+        &peer_args("uds", "recv-block", &b, None, rate, secs),
+        "unused_",
+    )?;
+    wait_ready(&mut recv);
+    let relay_args = peer_args("uds", "relay-block", &a, Some(&b), rate, secs);
+    let mut relay = taxel(&relay_args, "unused_")?;
+    wait_ready(&mut relay);
+    let mut send = taxel(&peer_args("uds", "send", &a, None, rate, secs), "unused_")?;
     let out = output(recv);
     let _ = send.kill();
     let _ = send.wait();
