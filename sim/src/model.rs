@@ -277,6 +277,12 @@ pub struct NodeFactors {
     pub g0: Vec<f64>,
     /// Multiplier of `material.gain_us_per_n` per crossing.
     pub gain: Vec<f64>,
+    /// Share of a driven (recorded) force each crossing carries, relative to the most loaded
+    /// one (1). Only driven mode uses it (a scenario has its own contact map); default 1 for
+    /// every crossing. It matters where an effect acts on the local load, not on the total:
+    /// hysteresis half-widths are in newtons of local load.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub load_share: Option<Vec<f64>>,
 }
 
 /// The whole sensor model: geometry, readout, static law, spread, curvature and the optional
@@ -413,6 +419,14 @@ impl SensorModel {
                 nf.g0.iter().chain(&nf.gain).all(|v| finite_nonneg(*v)),
                 "nodes.g0 and nodes.gain must be finite and >= 0",
             )?;
+            if let Some(share) = &nf.load_share {
+                check(
+                    share.len() == n && share.iter().all(|v| finite_nonneg(*v)),
+                    &format!(
+                        "nodes.load_share must have rows * cols = {n} entries, finite and >= 0"
+                    ),
+                )?;
+            }
         }
         let s = &self.spread;
         for (v, name) in [

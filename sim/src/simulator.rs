@@ -128,7 +128,9 @@ impl Simulator {
             noise: Rng::new(seed, STREAM_NOISE),
             tremor,
             creep: vec![0.0; n * creep_terms],
-            hyst: vec![0.0; n * hyst_terms],
+            // NaN: not started; the first step puts each play operator on its unloading
+            // branch (a sensor at rest was last unloaded), as taxel-simcheck's model does.
+            hyst: vec![f64::NAN; n * hyst_terms],
             t_sensor_c: None,
             contact: None,
             mounting: None,
@@ -247,7 +249,13 @@ impl Simulator {
                 size_rows: self.model.rows as f64,
                 size_cols: self.model.cols as f64,
             };
-            self.contact = Some((whole, vec![1.0; self.n]));
+            let weights = self
+                .model
+                .nodes
+                .as_ref()
+                .and_then(|nf| nf.load_share.clone())
+                .unwrap_or_else(|| vec![1.0; self.n]);
+            self.contact = Some((whole, weights));
         }
         self.driven_force = Some(force_n);
         let mounting = Mounting {
@@ -338,7 +346,11 @@ impl Simulator {
                 let states = &mut self.hyst[k * m..(k + 1) * m];
                 let mut sum = 0.0;
                 for (z, r) in states.iter_mut().zip(&h.thresholds_n) {
-                    *z = z.clamp(f - r, f + r);
+                    *z = if z.is_nan() {
+                        f + r
+                    } else {
+                        z.clamp(f - r, f + r)
+                    };
                     sum += *z;
                 }
                 f = (1.0 - h.weight) * f + h.weight * sum / m as f64;
@@ -666,6 +678,7 @@ mod driven_tests {
         m.nodes = Some(NodeFactors {
             g0: vec![1.0; 16],
             gain: (0..16).map(|k| if k == 5 { 1.0 } else { 0.0 }).collect(),
+            load_share: None,
         });
         let mut sim = Simulator::new(&m, &Scenario::default()).expect("valid");
         let mut out = vec![0.0f32; 16];
@@ -674,6 +687,17 @@ mod driven_tests {
         sim.step_driven(0.01, 5.0, 0.0, 25.0, 0, &mut out);
         assert!(out[5] > rest[5] + 50.0, "{} vs {}", out[5], rest[5]);
         assert_eq!(out[0], rest[0], "a node with zero gain does not respond");
+        // A node carrying half the load reads what the full node reads at half the force.
+        let mut half = m.clone();
+        if let Some(nf) = &mut half.nodes {
+            nf.load_share = Some((0..16).map(|k| if k == 5 { 0.5 } else { 1.0 }).collect());
+        }
+        let mut sim_half = Simulator::new(&half, &Scenario::default()).expect("valid");
+        let mut sim_full = Simulator::new(&m, &Scenario::default()).expect("valid");
+        let mut out_full = vec![0.0f32; 16];
+        sim_half.step_driven(0.0, 8.0, 0.0, 25.0, 0, &mut out);
+        sim_full.step_driven(0.0, 4.0, 0.0, 25.0, 0, &mut out_full);
+        assert_eq!(out[5], out_full[5]);
         // Curvature lowers the sensitivity in driven mode too.
         let mut bent = Simulator::new(&m, &Scenario::default()).expect("valid");
         bent.step_driven(0.0, 5.0, 80.0, 25.0, 0, &mut out);
