@@ -123,6 +123,9 @@ fn effect_params(
                 p.insert("weight".into(), hysteresis_weight(ds, cfg, theta));
                 p.insert("threshold_n".into(), r);
                 p.insert("mix".into(), cfg.hyst_mix);
+                if let Some(share) = cfg.hyst_share {
+                    p.insert("share".into(), share);
+                }
             }
         }
         EffectKind::ThermalDrift => match &cfg.thermal {
@@ -188,11 +191,35 @@ fn effect_params(
     p
 }
 
+/// In-load hysteresis `f + share (gap_r + mix gap_4r)` in the simulator's form
+/// `f + w mean_j gap_{r_j}`: `a` thresholds at `r` and `b` at `4r` with `b / a` closest to `mix`
+/// (`a + b <= 12`), and `w = share (a + b) / a` (clamped to the simulator's -1..=1). A negative
+/// `mix` cannot be written with equal weights: the wide operator is then left out.
+pub fn in_load_as_sim(r: f64, mix: f64, share: f64) -> (f64, Vec<f64>) {
+    let mut best = (1usize, 0usize);
+    for a in 1..=12usize {
+        for b in 0..=(12 - a) {
+            let err = |(a, b): (usize, usize)| (b as f64 / a as f64 - mix).abs();
+            if err((a, b)) < err(best) {
+                best = (a, b);
+            }
+        }
+    }
+    let (a, b) = best;
+    let mut thresholds = vec![r; a];
+    thresholds.extend(std::iter::repeat_n(4.0 * r, b));
+    let w = (share * (a + b) as f64 / a as f64).clamp(-1.0, 1.0);
+    (w, thresholds)
+}
+
 /// The play operators' share of the load, `w`, implied by the fitted per-node hysteresis
 /// amplitudes: `h_k (1 + mix) = a_k n F^(n-1) w` at the mean loaded force (median over
 /// responsive nodes), for the simulator's mean of the two plays (half-widths `r` and `4r`).
 /// Negative when the loop runs the other way (the loading branch above the unloading one).
 pub fn hysteresis_weight(ds: &Dataset, cfg: &Config, theta: &[Vec<f64>]) -> f64 {
+    if let (Some(r), Some(share)) = (cfg.hysteresis, cfg.hyst_share) {
+        return in_load_as_sim(r, cfg.hyst_mix, share).0;
+    }
     let fmax = ds.max_force();
     let loaded: Vec<f64> = ds
         .force
@@ -666,6 +693,7 @@ fn find_unexplained(
 mod tests {
     use super::*;
     use crate::data::ReadoutMap;
+    use crate::search::ParamCount;
 
     /// One node, presses with independent levels and ramp durations (0.2-2 s) at 100 Hz.
     fn presses() -> Dataset {
@@ -737,11 +765,45 @@ mod tests {
             assert_eq!(n_params(cfg, EffectKind::Creep).global, 2 * terms);
             assert!(params.contains(&Param::CreepLnTau(terms - 1)));
         }
+        // Hysteresis: additive with one amplitude per node, or in the load path with one
+        // global share (charged three global parameters and none per node).
+        let hyst = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Hysteresis);
+        assert_eq!(hyst.len(), 2);
+        let (additive, in_load) = (&hyst[0], &hyst[1]);
+        assert!(additive.0.iter().all(|c| c.hyst_share.is_none()));
+        assert!(in_load.0.iter().all(|c| c.hyst_share.is_some()));
+        assert!(in_load.1.contains(&Param::HystShare) && !additive.1.contains(&Param::HystShare));
+        let k = |c: &Config| n_params(c, EffectKind::Hysteresis);
+        assert_eq!(
+            k(&additive.0[0]),
+            ParamCount {
+                global: 2,
+                per_node: 1
+            }
+        );
+        assert_eq!(
+            k(&in_load.0[0]),
+            ParamCount {
+                global: 3,
+                per_node: 0
+            }
+        );
         // Other effects have one variant.
         assert_eq!(
-            candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Hysteresis).len(),
+            candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Crosstalk).len(),
             1
         );
+    }
+
+    #[test]
+    fn in_load_hysteresis_goes_into_the_simulator_form() {
+        // mix 0.5: two operators at r for one at 4r; w = share x 3 / 2.
+        let (w, th) = in_load_as_sim(0.2, 0.5, -0.3);
+        assert_eq!(th, vec![0.2, 0.2, 0.8]);
+        assert!((w + 0.45).abs() < 1e-12, "{w}");
+        // A negative mix cannot be written with equal weights: the wide operator is left out.
+        let (w, th) = in_load_as_sim(0.2, -0.5, 0.3);
+        assert_eq!((w, th), (0.3, vec![0.2]));
     }
 
     fn cv(resid: Vec<f64>) -> Cv {

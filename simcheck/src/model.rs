@@ -80,6 +80,12 @@ pub struct Config {
     /// Hysteresis loop shape: the gap is `gap_r + mix gap_4r` (0: sharp corners; larger:
     /// rounder loops). One global number, so each node pays for one amplitude only.
     pub hyst_mix: f64,
+    /// Hysteresis in the load path, as the simulator and the material have it: each node's load
+    /// becomes `F + share gap_k(F)` before the force law, where `gap_k` has the half-widths
+    /// scaled to the node's share of the load (`Context::load_scale`: a node carrying a tenth
+    /// of the load needs ten times the total force to cross the same local play); one global
+    /// share and no per-node amplitude. `None`: the additive form above.
+    pub hyst_share: Option<f64>,
     pub thermal: Option<Thermal>,
     /// Curvature sensitivity: `kappa_s` (1/m) with a curvature column, else `beta` (per unit
     /// log-baseline shift of the trial).
@@ -106,6 +112,7 @@ impl Config {
             creep: None,
             hysteresis: None,
             hyst_mix: 0.0,
+            hyst_share: None,
             thermal: None,
             curv_sens: None,
             curv_linear: false,
@@ -141,7 +148,10 @@ impl Config {
                 }
             }
             EffectKind::Creep => c.creep = None,
-            EffectKind::Hysteresis => c.hysteresis = None,
+            EffectKind::Hysteresis => {
+                c.hysteresis = None;
+                c.hyst_share = None;
+            }
             EffectKind::ThermalDrift => c.thermal = None,
             EffectKind::Crosstalk => c.crosstalk = None,
             EffectKind::ScanSkew => c.scan_skew = None,
@@ -184,6 +194,10 @@ pub struct Context<'a> {
     /// continuous loaded span. Creep is seen while a load is held; a slower "creep" could not be
     /// told from a drift, so it is not allowed to stand in for one.
     pub creep_tau_max: f64,
+    /// Per node: the total force that moves the node as much as one newton moves the most
+    /// loaded node (>= 1), from the nodes' loaded-minus-rest conductance (see `load_scale`).
+    /// In-load hysteresis uses it to turn a local half-width into total-force units.
+    pub load_scale: Vec<f64>,
 }
 
 impl<'a> Context<'a> {
@@ -227,6 +241,7 @@ impl<'a> Context<'a> {
             .collect();
         let (block, n_blocks) = blocks(ds);
         let creep_tau_max = 3.0 * longest_loaded_span(ds);
+        let load_scale = load_scale(ds, &g_obs, &rest);
         Context {
             ds,
             g_obs,
@@ -236,6 +251,7 @@ impl<'a> Context<'a> {
             block,
             n_blocks,
             creep_tau_max,
+            load_scale,
         }
     }
 
@@ -247,6 +263,44 @@ impl<'a> Context<'a> {
     pub fn fold(&self, i: usize) -> usize {
         self.block[i] % 2
     }
+}
+
+/// Each node's share of the load relative to the most loaded node, inverted (see
+/// [`Context::load_scale`]): the median conductance rise over the rest level on samples above
+/// half the peak force, to the power 1 / 1.1 (a typical force-law exponent), clamped to 1..=100.
+fn load_scale(ds: &Dataset, g_obs: &[f64], rest: &[bool]) -> Vec<f64> {
+    let n = ds.n;
+    let fmax = ds.max_force();
+    let med = |mut v: Vec<f64>| -> f64 {
+        if v.is_empty() {
+            return 0.0;
+        }
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let rise: Vec<f64> = (0..n)
+        .map(|k| {
+            let column = |keep: &dyn Fn(usize) -> bool| -> Vec<f64> {
+                (0..ds.len())
+                    .filter(|&i| keep(i))
+                    .map(|i| g_obs[i * n + k])
+                    .collect()
+            };
+            let high = med(column(&|i| ds.force[i] >= 0.5 * fmax));
+            let low = med(column(&|i| rest[i]));
+            (high - low).max(0.0)
+        })
+        .collect();
+    let top = rise.iter().cloned().fold(0.0, f64::max);
+    rise.iter()
+        .map(|&r| {
+            if top > 0.0 && r > 0.0 {
+                (top / r).powf(1.0 / 1.1).clamp(1.0, 100.0)
+            } else {
+                100.0
+            }
+        })
+        .collect()
 }
 
 /// Contiguous time blocks, cut at trial changes too, about 1/24 of the recording each (at
@@ -290,13 +344,17 @@ pub const MAX_CREEP_TERMS: usize = 3;
 
 /// The load transform: creep, then the power law. (Hysteresis enters as its own per-node
 /// term, see [`play_gap`].)
+/// Only every `every`-th sample gets its power law (the others are left 0: the parameter
+/// search looks at every `stride`-th sample only); the creep states follow every sample.
 pub fn load_series(
     f: impl Iterator<Item = f64>,
     dt: &[f64],
     cfg: &Config,
     tau_max: f64,
+    every: usize,
     out: &mut Vec<f64>,
 ) {
+    let every = every.max(1);
     out.clear();
     let mut s = [0.0f64; MAX_CREEP_TERMS];
     for (i, fi) in f.enumerate() {
@@ -310,7 +368,11 @@ pub fn load_series(
                 l += c * *st;
             }
         }
-        out.push(l.max(0.0).powf(cfg.exponent));
+        out.push(if i % every == 0 {
+            l.max(0.0).powf(cfg.exponent)
+        } else {
+            0.0
+        });
     }
 }
 
@@ -387,27 +449,54 @@ pub fn evaluate_with(
     let mut dt: Vec<f64> = Vec::with_capacity(len);
     dt.push(ds.dt());
     dt.extend(ds.t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
-    // Loads: one series for all nodes; scan skew shifts node k by k * dt_node to first order,
-    // p_k(t) = p(t) + k dt_node dp/dt.
-    let mut p_common = Vec::new();
-    load_series(
-        ds.force.iter().copied(),
-        &dt,
-        cfg,
-        ctx.creep_tau_max,
-        &mut p_common,
-    );
     let skew = cfg.scan_skew.map_or(0.0, |v| v.min(max_scan_skew(ds)));
-    let dp: Vec<f64> = if skew != 0.0 {
-        (0..len)
-            .map(|i| {
-                let (a, b) = (i.saturating_sub(1), (i + 1).min(len - 1));
-                let span = ds.t[b] - ds.t[a];
-                if span > 0.0 {
-                    (p_common[b] - p_common[a]) / span
-                } else {
-                    0.0
-                }
+    // The slopes scan skew needs read the neighbours of each sample.
+    let every = if want_pred || skew != 0.0 { 1 } else { stride };
+    // Loads: one series for all nodes (per node with in-load hysteresis); scan skew shifts
+    // node k by k * dt_node to first order, p_k(t) = p(t) + k dt_node dp/dt.
+    let loads: Vec<Vec<f64>> = match (cfg.hysteresis, cfg.hyst_share) {
+        (Some(r), Some(share)) => ctx
+            .load_scale
+            .iter()
+            .map(|&sc| {
+                // The two play operators of `play_gap`, run inline (no temporary series).
+                let (r1, r4) = (r * sc, 4.0 * r * sc);
+                let mut z: Option<(f64, f64)> = None;
+                let f = ds.force.iter().map(|&fi| {
+                    let l = fi.max(0.0);
+                    let (a, b) = z.map_or((l + r1, l + r4), |(a, b)| {
+                        (a.clamp(l - r1, l + r1), b.clamp(l - r4, l + r4))
+                    });
+                    z = Some((a, b));
+                    fi + share * ((a - l) + cfg.hyst_mix * (b - l))
+                });
+                let mut p = Vec::with_capacity(len);
+                load_series(f, &dt, cfg, ctx.creep_tau_max, every, &mut p);
+                p
+            })
+            .collect(),
+        _ => {
+            let mut p = Vec::new();
+            let f = ds.force.iter().copied();
+            load_series(f, &dt, cfg, ctx.creep_tau_max, every, &mut p);
+            vec![p]
+        }
+    };
+    let slopes: Vec<Vec<f64>> = if skew != 0.0 {
+        loads
+            .iter()
+            .map(|p| {
+                (0..len)
+                    .map(|i| {
+                        let (a, b) = (i.saturating_sub(1), (i + 1).min(len - 1));
+                        let span = ds.t[b] - ds.t[a];
+                        if span > 0.0 {
+                            (p[b] - p[a]) / span
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect()
             })
             .collect()
     } else {
@@ -418,15 +507,16 @@ pub fn evaluate_with(
     let settle = cfg.scan_settle;
     let cols_n = ds.cols.max(1);
     let p_at = |k: usize, i: usize| -> f64 {
-        if dp.is_empty() {
-            p_common[i]
+        let j = k.min(loads.len() - 1);
+        if slopes.is_empty() {
+            loads[j][i]
         } else {
             let lag = if k.is_multiple_of(cols_n) {
                 settle
             } else {
                 0.0
             };
-            (p_common[i] + (skew * k as f64 - lag) * dp[i]).max(0.0)
+            (loads[j][i] + (skew * k as f64 - lag) * slopes[j][i]).max(0.0)
         }
     };
     // Curvature sensitivity per sample.
@@ -516,7 +606,7 @@ pub fn evaluate_with(
     // the difference between branches (a loop), never a level-dependent offset the static law
     // should carry.
     let hyst: Vec<f64> = match cfg.hysteresis {
-        Some(r) => {
+        Some(r) if cfg.hyst_share.is_none() => {
             let narrow = play_gap(&ds.force, r);
             let wide = play_gap(&ds.force, 4.0 * r);
             let mixed = narrow
@@ -526,7 +616,7 @@ pub fn evaluate_with(
                 .collect();
             centre_by_level(&ds.force, mixed)
         }
-        None => Vec::new(),
+        _ => Vec::new(),
     };
     let lay = Layout {
         n_int,

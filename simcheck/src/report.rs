@@ -64,6 +64,17 @@ pub fn extended_model(
         s[s.len() / 2]
     };
     let b_med = med(&b).max(1e-12);
+    // In-load hysteresis acts on each node's own load, F / load_scale: the simulator gets the
+    // nodes' shares of a driven force, and each gain grows by load_scale^n to match.
+    let load_scale = cfg
+        .hyst_share
+        .and(cfg.hysteresis)
+        .map(|_| crate::model::Context::new(ds).load_scale);
+    if let Some(sc) = &load_scale {
+        for (ak, s) in a.iter_mut().zip(sc) {
+            *ak *= s.powf(cfg.exponent);
+        }
+    }
     let a_ref = {
         let m = med(&a);
         if m > 0.0 {
@@ -77,6 +88,7 @@ pub fn extended_model(
     m.nodes = Some(NodeFactors {
         g0: b.iter().map(|v| v / b_med).collect(),
         gain: a.iter().map(|v| v / a_ref).collect(),
+        load_share: load_scale.map(|sc| sc.iter().map(|s| 1.0 / s).collect()),
     });
     m.spread.node_gain_log_sd = 0.0;
     m.spread.node_g0_log_sd = 0.0;
@@ -124,11 +136,22 @@ pub fn extended_model(
         amplitudes: terms.iter().map(|t| t.0.clamp(-0.99, 0.99)).collect(),
         tau_s: terms.iter().map(|t| t.1).collect(),
     });
-    m.hysteresis = cfg.hysteresis.map(|r| Hysteresis {
-        weight: crate::diagnose::hysteresis_weight(ds, cfg, &d.final_theta),
-        thresholds_n: vec![r, 4.0 * r],
+    m.hysteresis = cfg.hysteresis.map(|r| match cfg.hyst_share {
+        Some(share) => {
+            let (weight, thresholds_n) = crate::diagnose::in_load_as_sim(r, cfg.hyst_mix, share);
+            Hysteresis {
+                weight,
+                thresholds_n,
+            }
+        }
+        None => Hysteresis {
+            weight: crate::diagnose::hysteresis_weight(ds, cfg, &d.final_theta),
+            thresholds_n: vec![r, 4.0 * r],
+        },
     });
-    if cfg.hysteresis.is_some() {
+    if cfg.hyst_share.is_some() {
+        notes.push(format!("hysteresis: the tool fits the load path F + share (gap_r + mix gap_4r) per node, with each node's half-widths scaled to its share of the load (nodes.load_share, estimated from its signal); SIM.toml gets the simulator's equal-weight form: half-widths r and 4r (in newtons of the most loaded node's load) repeated in the ratio closest to mix = {:.2}, and weight = share x (number of operators) / (number at r)", cfg.hyst_mix));
+    } else if cfg.hysteresis.is_some() {
         notes.push("hysteresis: the tool fits two play operators (half-widths r and 4r, mixed as gap_r + mix gap_4r) on the total force with one amplitude per node; SIM.toml gets both half-widths and the median share of the load (weight; negative when the loading branch lies above the unloading one)".into());
     }
     m.thermal_drift = match &cfg.thermal {

@@ -24,6 +24,7 @@ pub enum Param {
     CreepLnTau(usize),
     HystLnR,
     HystMix,
+    HystShare,
     ThermAlpha,
     ThermLnTau,
     CurvLnK,
@@ -46,6 +47,7 @@ impl Param {
                 .map_or(0.0, |t| t.1.ln()),
             Param::HystLnR => c.hysteresis.map_or(0.0, |r| r.max(1e-9).ln()),
             Param::HystMix => c.hyst_mix,
+            Param::HystShare => c.hyst_share.unwrap_or(0.0),
             Param::ThermAlpha => match &c.thermal {
                 Some(Thermal::Recorded { alpha_per_k, .. }) => alpha_per_k * 100.0,
                 _ => 0.0,
@@ -82,6 +84,11 @@ impl Param {
                 }
             }
             Param::HystMix => c.hyst_mix = v.clamp(-0.9, 4.0),
+            Param::HystShare => {
+                if let Some(a) = &mut c.hyst_share {
+                    *a = v.clamp(-2.0, 2.0);
+                }
+            }
             Param::ThermAlpha => {
                 if let Some(Thermal::Recorded { alpha_per_k, .. }) = &mut c.thermal {
                     *alpha_per_k = (v / 100.0).clamp(-0.09, 0.09);
@@ -104,6 +111,7 @@ impl Param {
         match self {
             Param::CreepC(_) => 0.03,
             Param::ThermAlpha => 0.1,
+            Param::HystShare => 0.1,
             Param::CurvBeta => 0.5,
             Param::LnExponent => 0.05,
             _ => 0.5,
@@ -461,6 +469,22 @@ pub fn candidates(ctx: &Context, cur: &Config, e: EffectKind) -> Vec<(Vec<Config
         p3.extend([Param::CreepC(2), Param::CreepLnTau(2)]);
         return vec![(starts, params), (three, p3)];
     }
+    if e == EffectKind::Hysteresis {
+        let in_load: Vec<Config> = starts
+            .iter()
+            .filter(|s| s.hyst_mix == 0.0)
+            .flat_map(|s| {
+                [-0.3, 0.3].map(|a| Config {
+                    hyst_share: Some(a),
+                    hyst_mix: 1.0,
+                    ..s.clone()
+                })
+            })
+            .collect();
+        let mut p_load = params.clone();
+        p_load.push(Param::HystShare);
+        return vec![(starts, params), (in_load, p_load)];
+    }
     if e != EffectKind::ThermalDrift || ctx.ds.temp.is_some() {
         return vec![(starts, params)];
     }
@@ -495,6 +519,9 @@ pub fn all_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
     if cfg.hysteresis.is_some() {
         p.push(Param::HystLnR);
         p.push(Param::HystMix);
+        if cfg.hyst_share.is_some() {
+            p.push(Param::HystShare);
+        }
     }
     if let Some(Thermal::Recorded { .. }) = cfg.thermal {
         p.extend([Param::ThermAlpha, Param::ThermLnTau]);
@@ -528,6 +555,7 @@ pub struct ParamCount {
 pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
     let (global, per_node) = match e {
         EffectKind::Creep => (2 * cfg.creep.as_ref().map_or(2, Vec::len), 0),
+        EffectKind::Hysteresis if cfg.hyst_share.is_some() => (3, 0),
         EffectKind::Hysteresis => (2, 1),
         EffectKind::ThermalDrift => match &cfg.thermal {
             Some(Thermal::Latent { knots_s, .. }) => (knots_s.len(), 0),

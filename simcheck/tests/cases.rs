@@ -8,7 +8,11 @@ use taxel_simcheck::cli::run_case;
 use taxel_simcheck::refworld::Case;
 
 fn check(case: Case) {
-    let row = run_case(case, 1, 300.0, None).expect("diagnose runs");
+    check_in(case, None);
+}
+
+fn check_in(case: Case, out: Option<&std::path::Path>) {
+    let row = run_case(case, 1, 300.0, out).expect("diagnose runs");
     let (verdict, effects) = case.truth();
     assert_eq!(
         row.verdict,
@@ -44,9 +48,26 @@ fn distractor_is_not_named() {
 fn two_time_constant_creep_is_found() {
     check(Case::Creep);
 }
+/// Also: the SIM.toml written for it (play operators on each node's own load, the nodes' load
+/// shares, gains rescaled) makes taxel-sim reproduce the tool's own fit.
 #[test]
-fn bouc_wen_hysteresis_is_found() {
-    check(Case::Hysteresis);
+fn bouc_wen_hysteresis_is_found_and_its_sim_model_reproduces_the_fit() {
+    let dir = std::env::temp_dir().join(format!("taxel-simcheck-hyst-{}", std::process::id()));
+    check_in(Case::Hysteresis, Some(&dir));
+    let path = dir.join(Case::Hysteresis.slug()).join("report.json");
+    let text = std::fs::read_to_string(&path).expect("report.json written");
+    let _ = std::fs::remove_dir_all(&dir);
+    let j: serde_json::Value = serde_json::from_str(&text).expect("report.json parses");
+    let num = |k: &str| j[k].as_f64().unwrap_or(f64::NAN);
+    let (base, fit, resim) = (
+        num("rmse_base"),
+        num("rmse_final"),
+        num("resim_rmse_taxel_sim"),
+    );
+    assert!(
+        resim < 1.1 * fit && resim < 0.7 * base,
+        "taxel-sim from SIM.toml: {resim} against the fit's {fit} (base {base})"
+    );
 }
 #[test]
 fn thermal_drift_is_found_with_a_temperature_column() {
