@@ -13,6 +13,10 @@
 # $FUZZ_TARGET_DIR/runs), FUZZ_NICE (niceness, default 15), FUZZ_MERGE=0 to skip the merge.
 # FUZZ_SRC builds from another checkout of the workspace (e.g. a `git archive HEAD` export while
 # others edit the working tree); the corpus merged into is always this script's fuzz/corpus.
+# FUZZ_SCOPE=own instruments only this workspace's crates (fuzz/instrument-own.sh), so the
+# coverage counts and the plateau are about taxel's code and not about the TOML grammar or
+# serde; its build goes to a separate directory (default ${FUZZ_TARGET_DIR}-own). A target with
+# a dictionary in fuzz/dict/<target>.dict gets it (-dict=).
 # One fuzzer at a time: the machine is shared. Exit code 1 if any target found a crash
 # (the crashing input is in $FUZZ_OUT/artifacts/<target>/).
 set -euo pipefail
@@ -25,19 +29,36 @@ all=(serial_binary serial_ascii recording_csv record_file calibration curvature_
 targets=("$@")
 [ ${#targets[@]} -eq 0 ] && targets=("${all[@]}")
 
+scope="${FUZZ_SCOPE:-all}"
+case "$scope" in
+all | own) ;;
+*)
+    echo "fuzz/run.sh: FUZZ_SCOPE=$scope: expected all or own" >&2
+    exit 2
+    ;;
+esac
 if [ -z "${FUZZ_TARGET_DIR:-}" ]; then
     if [ -d /work/targets ]; then FUZZ_TARGET_DIR=/work/targets/fuzz; else FUZZ_TARGET_DIR="$root/target/fuzz"; fi
+    [ "$scope" = own ] && FUZZ_TARGET_DIR="$FUZZ_TARGET_DIR-own"
 fi
 out="${FUZZ_OUT:-$FUZZ_TARGET_DIR/runs}"
 nice_level="${FUZZ_NICE:-15}"
 triple="$(rustc -vV | sed -n 's/^host: //p')"
 
 # --target keeps the instrumentation off build scripts and proc macros, as cargo-fuzz does.
-export RUSTFLAGS="-Cpasses=sancov-module -Cllvm-args=-sanitizer-coverage-level=4 \
+sancov="-Cpasses=sancov-module -Cllvm-args=-sanitizer-coverage-level=4 \
 -Cllvm-args=-sanitizer-coverage-inline-8bit-counters -Cllvm-args=-sanitizer-coverage-pc-table \
--Cllvm-args=-sanitizer-coverage-trace-compares --cfg fuzzing -Cdebug-assertions -Coverflow-checks"
-echo "building instrumented targets into $FUZZ_TARGET_DIR ..."
-(cd "${FUZZ_SRC:-$root}" && CARGO_TARGET_DIR="$FUZZ_TARGET_DIR" nice -n "$nice_level" \
+-Cllvm-args=-sanitizer-coverage-trace-compares"
+checks="--cfg fuzzing -Cdebug-assertions -Coverflow-checks"
+src="$(cd "${FUZZ_SRC:-$root}" && pwd)"
+if [ "$scope" = own ]; then
+    export RUSTFLAGS="$checks"
+    export RUSTC_WRAPPER="$here/instrument-own.sh" FUZZ_OWN_ROOT="$src" FUZZ_SANCOV_FLAGS="$sancov"
+else
+    export RUSTFLAGS="$sancov $checks"
+fi
+echo "building instrumented targets ($scope crates) into $FUZZ_TARGET_DIR ..."
+(cd "$src" && CARGO_TARGET_DIR="$FUZZ_TARGET_DIR" nice -n "$nice_level" \
     cargo build --release -p taxel-fuzz --bins --target "$triple")
 bin="$FUZZ_TARGET_DIR/$triple/release"
 
@@ -56,7 +77,9 @@ for t in "${targets[@]}"; do
     start=$SECONDS
     # Each libFuzzer line is prefixed with the seconds elapsed since the target started.
     set +e
-    nice -n "$nice_level" "$bin/$t" "$work" -max_total_time="$secs" -print_final_stats=1 \
+    dict=()
+    [ -f "$here/dict/$t.dict" ] && dict=(-dict="$here/dict/$t.dict")
+    nice -n "$nice_level" "$bin/$t" "$work" "${dict[@]}" -max_total_time="$secs" -print_final_stats=1 \
         -artifact_prefix="$art" -timeout=10 -rss_limit_mb=2048 -max_len=8192 2>&1 |
         while IFS= read -r line; do printf '%5d %s\n' $((SECONDS - start)) "$line"; done >"$log"
     rc=${PIPESTATUS[0]}
@@ -70,7 +93,7 @@ for t in "${targets[@]}"; do
         { for (i = 1; i <= NF; i++) if ($i == "ft:") f = $(i + 1) }
         f != prev { t = $1; prev = f } END { print t }')
     execs=$(sed -n 's/.*stat::number_of_executed_units: *//p' "$log" | tail -n 1)
-    line="$t: exit $rc, ${secs}s, execs ${execs:-?}, last: ${last#* }, cov last grew at ${last_cov:-?}s, ft last grew at ${last_ft:-?}s"
+    line="$t ($scope): exit $rc, ${secs}s, execs ${execs:-?}, last: ${last#* }, cov last grew at ${last_cov:-?}s, ft last grew at ${last_ft:-?}s"
     echo "$line" | tee -a "$summary"
     if [ "$rc" -ne 0 ]; then
         crashed=1
