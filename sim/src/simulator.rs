@@ -128,8 +128,10 @@ impl Simulator {
             noise: Rng::new(seed, STREAM_NOISE),
             tremor,
             creep: vec![0.0; n * creep_terms],
-            // NaN: not started; the first step puts each play operator on its unloading
-            // branch (a sensor at rest was last unloaded), as taxel-simcheck's model does.
+            // NaN: not started. A scenario starts each play operator at zero (a sensor that
+            // was never loaded); driven mode (re-simulating a recording) starts it on its
+            // unloading branch (a sensor at rest was last unloaded), as taxel-simcheck's model
+            // does.
             hyst: vec![f64::NAN; n * hyst_terms],
             t_sensor_c: None,
             contact: None,
@@ -331,6 +333,7 @@ impl Simulator {
                 .collect(),
             None => Vec::new(),
         };
+        let driven = self.driven_force.is_some();
         let (weights, base) = match (&self.contact, &self.mounting) {
             (Some(c), Some(m)) => (&c.1, &m.2),
             _ => return,
@@ -346,11 +349,8 @@ impl Simulator {
                 let states = &mut self.hyst[k * m..(k + 1) * m];
                 let mut sum = 0.0;
                 for (z, r) in states.iter_mut().zip(&h.thresholds_n) {
-                    *z = if z.is_nan() {
-                        f + r
-                    } else {
-                        z.clamp(f - r, f + r)
-                    };
+                    let start = if driven { f + r } else { 0.0 };
+                    *z = if z.is_nan() { start } else { *z }.clamp(f - r, f + r);
                     sum += *z;
                 }
                 f = (1.0 - h.weight) * f + h.weight * sum / m as f64;
