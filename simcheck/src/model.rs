@@ -227,14 +227,27 @@ impl<'a> Context<'a> {
             v.sort_by(f64::total_cmp);
             Some(v[v.len() / 2])
         };
-        let overall: Vec<Option<f64>> = overall.iter_mut().map(med).collect();
+        // A node's rest level is a trimmed mean, not a median: the readings are whole ADC
+        // counts, and a curvature's baseline shift is often under one count, which the median
+        // of integer codes rounds away (two trials a count apart then both read as no shift).
+        // The noise dithers the codes, so their mean resolves fractions of a count.
+        let level = |v: &mut Vec<f64>| -> Option<f64> {
+            if v.is_empty() {
+                return None;
+            }
+            v.sort_by(f64::total_cmp);
+            let cut = v.len() / 10;
+            let kept = &v[cut..v.len() - cut];
+            Some(kept.iter().sum::<f64>() / kept.len() as f64)
+        };
+        let overall: Vec<Option<f64>> = overall.iter_mut().map(level).collect();
         let trial_shift = per_trial
             .iter_mut()
             .map(|nodes| {
                 let mut d: Vec<f64> = nodes
                     .iter_mut()
                     .zip(&overall)
-                    .filter_map(|(v, o)| Some(med(v)? - (*o)?))
+                    .filter_map(|(v, o)| Some(level(v)? - (*o)?))
                     .collect();
                 med(&mut d).unwrap_or(0.0)
             })
