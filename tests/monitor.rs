@@ -55,12 +55,22 @@ impl Tmux {
             "TAXEL_PREFIX={prefix} '{TAXEL}' monitor {args}; echo MONITOR_EXIT=$?; sleep 60"
         );
         self.cmd(&["kill-session", "-t", "m"]);
-        let out = Command::new("tmux")
-            .args(["-L", &self.socket, "new-session", "-d", "-s", "m"])
-            .args(["-x", "120", "-y", "40", &shell])
-            .status()
-            .expect("tmux new-session");
-        assert!(out.success(), "tmux new-session failed");
+        // Killing the last session makes the tmux server exit; a new-session that reaches it
+        // while it shuts down fails ("server exited unexpectedly"), so try again briefly.
+        let mut last = String::new();
+        for _ in 0..20 {
+            let out = Command::new("tmux")
+                .args(["-L", &self.socket, "new-session", "-d", "-s", "m"])
+                .args(["-x", "120", "-y", "40", &shell])
+                .output()
+                .expect("tmux new-session");
+            if out.status.success() {
+                return;
+            }
+            last = String::from_utf8_lossy(&out.stderr).into_owned();
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        panic!("tmux new-session failed: {last}");
     }
 }
 
