@@ -470,6 +470,8 @@ pub fn candidates(ctx: &Context, cur: &Config, e: EffectKind) -> Vec<(Vec<Config
         return vec![(starts, params), (three, p3)];
     }
     if e == EffectKind::Hysteresis {
+        // One start per half-width (the additive starts come twice, with mix 0 and 1), each
+        // with both signs of the share.
         let in_load: Vec<Config> = starts
             .iter()
             .filter(|s| s.hyst_mix == 0.0)
