@@ -483,7 +483,7 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
                 best = Some((e, cv, v, starts, params));
             }
         }
-        let Some((_, cv, _, starts, params)) = best else {
+        let Some((_, _, _, starts, params)) = best else {
             break;
         };
         let added = fit_all(&ctx, &starts, &params, ev_n);
@@ -493,7 +493,11 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
             &all_params(&added, ds.kappa.is_some()),
             ev_n * 2,
         );
-        cur_cv = cv;
+        // The next round's candidates start from the jointly refitted model and refit the base
+        // parameters per fold: the model they must beat is held out the same way. (Comparing
+        // them with the accepted candidate's own cross-validation credited every one of them
+        // with what the joint refit gained.)
+        cur_cv = cross_validate(&ctx, std::slice::from_ref(&cur), &base_params(&cur), ev_n);
     }
     // Backward pass: drop an effect the others made unnecessary.
     let mut contributions: BTreeMap<EffectKind, (Cv, Verdict)> = BTreeMap::new();

@@ -698,6 +698,8 @@ pub struct Verdict {
     /// Block t statistic of the gain on no-load samples alone (thermal drift must show there:
     /// temperature moves unloaded nodes, creep does not).
     pub rest_block_t: f64,
+    /// Relative fall in held-out SSE on no-load samples alone.
+    pub rest_rel_gain: f64,
     /// Weaker bar for keeping an effect already in the model (backward pass).
     pub keep: bool,
     /// Hysteresis only: the size of its contribution relative to the residual on slow and on
@@ -755,6 +757,17 @@ pub fn compare(before: &Cv, after: &Cv, k: ParamCount, stats: ResidStats) -> Ver
             && (block_t >= MIN_BLOCK_T || sign_z >= MIN_BLOCK_T)
             && ic_gain > 0.0,
         rest_block_t: block_t_of(&before.rest_block_sse, &after.rest_block_sse),
+        rest_rel_gain: {
+            let (b, a): (f64, f64) = (
+                before.rest_block_sse.iter().sum(),
+                after.rest_block_sse.iter().sum(),
+            );
+            if b > 0.0 {
+                1.0 - a / b
+            } else {
+                0.0
+            }
+        },
         keep: rel_gain >= 0.5 * MIN_REL_GAIN
             && (block_t >= MIN_KEEP_T || sign_z >= MIN_KEEP_T)
             && ic_gain > 0.0,

@@ -131,3 +131,44 @@ fn trial_shifts_resolve_sub_count_baseline_changes() {
         "{by_curvature:?}"
     );
 }
+
+/// After an effect joins, the whole model is refitted, and the next round's candidates (which
+/// start from that refit and refit the base parameters per fold) must beat that model held out
+/// the same way. An earlier version compared them with the accepted candidate's own
+/// cross-validation, which credited every later candidate with what the joint refit gained.
+#[test]
+fn later_rounds_are_compared_with_the_refitted_model() {
+    use taxel_simcheck::data::Dataset;
+    use taxel_simcheck::diagnose::{diagnose, Options};
+    use taxel_simcheck::model::Context;
+    use taxel_simcheck::search::{base_params, cross_validate};
+    let rec = taxel_simcheck::refworld::generate(Case::Hysteresis, 1, 150.0);
+    let start = taxel_sim::SensorModel::default();
+    let (ds, _) = Dataset::from_recording(rec, 4, 4, &start.readout, true).expect("dataset");
+    let opts = Options::default();
+    let d = diagnose(&ds, &start, &opts);
+    let named: Vec<&str> = d.effects.iter().map(|e| e.name.as_str()).collect();
+    assert_eq!(named, ["hysteresis"]);
+    let ctx = Context::new(&ds);
+    let refit = &d.final_cfg;
+    let held_out = cross_validate(
+        &ctx,
+        std::slice::from_ref(refit),
+        &base_params(refit),
+        opts.max_evals,
+    )
+    .rmse();
+    let later: Vec<f64> = d
+        .trials
+        .iter()
+        .filter(|t| t.round == 2)
+        .map(|t| t.verdict.rmse_before)
+        .collect();
+    assert!(!later.is_empty(), "no second round was tried");
+    for before in later {
+        assert!(
+            (before - held_out).abs() <= 1e-9 * held_out,
+            "second round compared with {before}, the refitted model holds out at {held_out}"
+        );
+    }
+}
