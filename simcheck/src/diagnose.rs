@@ -13,7 +13,7 @@ use crate::locate::{locate, node_stats, spans, Findings};
 use crate::model::{evaluate, max_scan_skew, Config, Context, EffectKind, Thermal};
 use crate::search::{
     all_params, applicable, base_params, candidates, compare, cross_validate, fit_all, n_params,
-    resid_stats, Cv, Param, Verdict,
+    refit_params, resid_stats, Cv, Param, Verdict,
 };
 
 /// The best candidate of a round: effect, its cross-validation, verdict, starts and params.
@@ -360,12 +360,13 @@ pub fn signature(e: EffectKind) -> &'static [&'static str] {
 
 fn evidence(e: EffectKind, v: &Verdict, f: &Findings) -> String {
     let mut s = format!(
-        "held-out SSE -{:.1} % (RMSE {:.4} -> {:.4}), better in {:.0} % of blocks, block t = {:.1}, information gain {:.0}",
+        "held-out SSE -{:.1} % (RMSE {:.4} -> {:.4}), better in {:.0} % of blocks, block t = {:.1}, signed-rank z = {:.1}, information gain {:.0}",
         100.0 * v.rel_gain,
         v.rmse_before,
         v.rmse_after,
         100.0 * v.blocks_improved,
         v.block_t,
+        v.rank_z,
         v.ic_gain
     );
     for name in signature(e) {
@@ -493,11 +494,16 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
             &all_params(&added, ds.kappa.is_some()),
             ev_n * 2,
         );
-        // The next round's candidates start from the jointly refitted model and refit the base
+        // The next round's candidates start from the jointly refitted model and refit all its
         // parameters per fold: the model they must beat is held out the same way. (Comparing
         // them with the accepted candidate's own cross-validation credited every one of them
         // with what the joint refit gained.)
-        cur_cv = cross_validate(&ctx, std::slice::from_ref(&cur), &base_params(&cur), ev_n);
+        cur_cv = cross_validate(
+            &ctx,
+            std::slice::from_ref(&cur),
+            &refit_params(&cur, ds.kappa.is_some()),
+            ev_n,
+        );
     }
     // Backward pass: drop an effect the others made unnecessary.
     let mut contributions: BTreeMap<EffectKind, (Cv, Verdict)> = BTreeMap::new();
@@ -510,7 +516,7 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
             let cv_minus = cross_validate(
                 &ctx,
                 std::slice::from_ref(&minus),
-                &base_params(&minus),
+                &refit_params(&minus, ds.kappa.is_some()),
                 ev_n,
             );
             let mut v = compare(

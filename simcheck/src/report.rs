@@ -666,18 +666,19 @@ fn markdown(
             );
         }
     }
-    let _ = writeln!(s, "\n### Every candidate tested\n\n| round | effect | held-out RMSE before -> after | SSE gain | block t | blocks better | information gain | accepted | time (s) |\n|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "\n### Every candidate tested\n\n| round | effect | held-out RMSE before -> after | SSE gain | block t | signed-rank z | blocks better | information gain | accepted | time (s) |\n|---|---|---|---|---|---|---|---|---|---|");
     for t in &d.trials {
         let v = &t.verdict;
         let _ = writeln!(
             s,
-            "| {} | {} | {:.4} -> {:.4} | {:.1} % | {:.1} | {:.0} % | {:.0} | {} | {:.1} |",
+            "| {} | {} | {:.4} -> {:.4} | {:.1} % | {:.1} | {:.1} | {:.0} % | {:.0} | {} | {:.1} |",
             t.round,
             t.effect,
             v.rmse_before,
             v.rmse_after,
             100.0 * v.rel_gain,
             v.block_t,
+            v.rank_z,
             100.0 * v.blocks_improved,
             v.ic_gain,
             if v.accepted { "yes" } else { "no" },
@@ -687,7 +688,7 @@ fn markdown(
     for (e, why) in &d.skipped {
         let _ = writeln!(s, "\n- {e} not testable here: {why}");
     }
-    let _ = writeln!(s, "\nAn effect is accepted when its held-out SSE gain is at least {:.0} %, its block t statistic (or the sign test over blocks, as a z score) at least {:.0}, and n_eff ln(SSE0/SSE1) exceeds k ln(n_eff) for its k extra parameters (n_eff = time samples / integrated autocorrelation time of the richer model's held-out residual).\n", 100.0 * crate::search::MIN_REL_GAIN, crate::search::MIN_BLOCK_T);
+    let _ = writeln!(s, "\nAn effect is accepted when its held-out SSE gain is at least {:.0} %, its block t statistic (or the Wilcoxon signed-rank test over blocks, as a z score) at least {:.0}, and n_eff ln(SSE0/SSE1) exceeds k ln(n_eff) for its k extra parameters (n_eff = time samples / integrated autocorrelation time of the richer model's held-out residual).\n", 100.0 * crate::search::MIN_REL_GAIN, crate::search::MIN_BLOCK_T);
     let _ = writeln!(s, "## Figures\n");
     for fig in figures.iter().filter(|f| f.ends_with(".png")) {
         let _ = writeln!(s, "![{fig}]({fig})\n");

@@ -450,7 +450,41 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
 /// Prony term between the other two, and a latent thermal drift, which is tried at each
 /// resolution of [`latent_resolutions`] (the caller keeps the variant the criterion likes
 /// best).
+/// What a model's held-out test refits on each training fold: the exponent and every parameter
+/// of its effects, so no effect parameter is fitted on the half it is tested on. The resistance
+/// floor only when saturation is one of the effects: it is slow to search and rarely trades off
+/// with the others, so otherwise it stays at the whole-recording fit.
+pub fn refit_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
+    all_params(cfg, has_kappa)
+        .into_iter()
+        .filter(|p| *p != Param::LnFloor || cfg.saturation)
+        .collect()
+}
+
+/// The variants of effect `e` to test on top of `cur`: start configurations and the parameters
+/// searched on each training fold (the current model's own, see [`refit_params`], and the
+/// effect's).
 pub fn candidates(ctx: &Context, cur: &Config, e: EffectKind) -> Vec<(Vec<Config>, Vec<Param>)> {
+    let held = refit_params(cur, ctx.ds.kappa.is_some());
+    candidate_variants(ctx, cur, e)
+        .into_iter()
+        .map(|(starts, params)| {
+            let mut all = held.clone();
+            for p in params {
+                if !all.contains(&p) {
+                    all.push(p);
+                }
+            }
+            (starts, all)
+        })
+        .collect()
+}
+
+fn candidate_variants(
+    ctx: &Context,
+    cur: &Config,
+    e: EffectKind,
+) -> Vec<(Vec<Config>, Vec<Param>)> {
     let (starts, params) = candidate(ctx, cur, e);
     if e == EffectKind::Creep {
         let three: Vec<Config> = starts
@@ -690,6 +724,8 @@ pub struct Verdict {
     pub block_t: f64,
     /// Share of blocks that improved.
     pub blocks_improved: f64,
+    /// Wilcoxon signed-rank z of the per-block SSE reductions.
+    pub rank_z: f64,
     /// Effective sample size used by the criterion.
     pub n_eff: f64,
     /// n_eff ln(SSE0/SSE1) - k ln(n_eff): positive = the parameters pay for themselves.
@@ -721,6 +757,32 @@ pub fn block_t_of(a: &[f64], b: &[f64]) -> f64 {
     }
 }
 
+/// Wilcoxon signed-rank statistic of `d` as a z score (normal approximation, ties ranked by
+/// their mean rank, zeros dropped): positive when the positive values outrank the negative.
+pub fn signed_rank_z(d: &[f64]) -> f64 {
+    let mut v: Vec<f64> = d.iter().copied().filter(|x| *x != 0.0).collect();
+    let n = v.len();
+    if n == 0 {
+        return 0.0;
+    }
+    v.sort_by(|a, b| a.abs().total_cmp(&b.abs()));
+    let mut w_plus = 0.0;
+    let mut i = 0;
+    while i < n {
+        let mut j = i;
+        while j + 1 < n && v[j + 1].abs() == v[i].abs() {
+            j += 1;
+        }
+        let rank = (i + j) as f64 / 2.0 + 1.0;
+        w_plus += rank * v[i..=j].iter().filter(|x| **x > 0.0).count() as f64;
+        i = j + 1;
+    }
+    let nf = n as f64;
+    let mean = nf * (nf + 1.0) / 4.0;
+    let sd = (nf * (nf + 1.0) * (2.0 * nf + 1.0) / 24.0).sqrt();
+    (w_plus - mean) / sd
+}
+
 pub fn compare(before: &Cv, after: &Cv, k: ParamCount, stats: ResidStats) -> Verdict {
     let d: Vec<f64> = before
         .block_sse
@@ -734,8 +796,12 @@ pub fn compare(before: &Cv, after: &Cv, k: ParamCount, stats: ResidStats) -> Ver
     let se = (var / nb).sqrt();
     let block_t = if se > 0.0 { mean / se } else { 0.0 };
     let improved = d.iter().filter(|x| **x > 0.0).count() as f64 / nb;
-    // Sign test over blocks: robust where one block dominates the SSE (a start-up transient).
-    let sign_z = (improved * nb - nb / 2.0) / (nb / 4.0).sqrt();
+    // Signed-rank test over blocks (beside the t statistic): robust where one block dominates
+    // the SSE (a start-up transient), and it weighs how much each block gained. An effect whose
+    // size varies over the recording (a drift that matters in some blocks more than in others)
+    // gains unevenly; the t statistic counts that unevenness as noise, the ranks do not. (It
+    // replaced a sign test, which counted many small gains as much as a few large losses.)
+    let rank_z = signed_rank_z(&d);
     // Nodes share the stimulus and its errors: count time samples, not node-samples. (Summing
     // per-node evidence instead lets any flexible per-node term absorb what another effect's
     // approximate form leaves behind.) Per-node parameters count once per node with data.
@@ -751,10 +817,11 @@ pub fn compare(before: &Cv, after: &Cv, k: ParamCount, stats: ResidStats) -> Ver
         rel_gain,
         block_t,
         blocks_improved: improved,
+        rank_z,
         n_eff,
         ic_gain,
         accepted: rel_gain >= MIN_REL_GAIN
-            && (block_t >= MIN_BLOCK_T || sign_z >= MIN_BLOCK_T)
+            && (block_t >= MIN_BLOCK_T || rank_z >= MIN_BLOCK_T)
             && ic_gain > 0.0,
         rest_block_t: block_t_of(&before.rest_block_sse, &after.rest_block_sse),
         rest_rel_gain: {
@@ -769,7 +836,7 @@ pub fn compare(before: &Cv, after: &Cv, k: ParamCount, stats: ResidStats) -> Ver
             }
         },
         keep: rel_gain >= 0.5 * MIN_REL_GAIN
-            && (block_t >= MIN_KEEP_T || sign_z >= MIN_KEEP_T)
+            && (block_t >= MIN_KEEP_T || rank_z >= MIN_KEEP_T)
             && ic_gain > 0.0,
         ramp_betas: None,
     }
@@ -841,5 +908,25 @@ mod tests {
             .collect();
         assert!(block_t_of(&before, &better) > 10.0);
         assert!(block_t_of(&before, &noise).abs() < 1.0);
+    }
+
+    #[test]
+    fn signed_rank_z_weighs_the_sizes_of_the_gains() {
+        // 24 blocks, all better: W+ = 300 against a mean of 150 and an sd of 35.
+        let all: Vec<f64> = (1..=24).map(f64::from).collect();
+        assert!((signed_rank_z(&all) - 150.0 / 35.0).abs() < 1e-9);
+        // 18 of 24 better either way (sign test z = 2.45), but the ranks see whether the
+        // gains or the losses are the big ones.
+        let small_losses: Vec<f64> = (1..=24)
+            .map(|i| if i <= 6 { -f64::from(i) } else { f64::from(i) })
+            .collect();
+        let big_losses: Vec<f64> = (1..=24)
+            .map(|i| if i > 18 { -f64::from(i) } else { f64::from(i) })
+            .collect();
+        assert!((signed_rank_z(&small_losses) - 129.0 / 35.0).abs() < 1e-9);
+        assert!((signed_rank_z(&big_losses) - 21.0 / 35.0).abs() < 1e-9);
+        // Ties share their mean rank; a symmetric set is zero; zeros are dropped.
+        assert!(signed_rank_z(&[1.0, -1.0, 2.0, -2.0]).abs() < 1e-12);
+        assert_eq!(signed_rank_z(&[0.0, 0.0]), 0.0);
     }
 }

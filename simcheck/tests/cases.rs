@@ -133,7 +133,7 @@ fn trial_shifts_resolve_sub_count_baseline_changes() {
 }
 
 /// After an effect joins, the whole model is refitted, and the next round's candidates (which
-/// start from that refit and refit the base parameters per fold) must beat that model held out
+/// start from that refit and refit all its parameters per fold) must beat that model held out
 /// the same way. An earlier version compared them with the accepted candidate's own
 /// cross-validation, which credited every later candidate with what the joint refit gained.
 #[test]
@@ -141,7 +141,7 @@ fn later_rounds_are_compared_with_the_refitted_model() {
     use taxel_simcheck::data::Dataset;
     use taxel_simcheck::diagnose::{diagnose, Options};
     use taxel_simcheck::model::Context;
-    use taxel_simcheck::search::{base_params, cross_validate};
+    use taxel_simcheck::search::{cross_validate, refit_params};
     let rec = taxel_simcheck::refworld::generate(Case::Hysteresis, 1, 150.0);
     let start = taxel_sim::SensorModel::default();
     let (ds, _) = Dataset::from_recording(rec, 4, 4, &start.readout, true).expect("dataset");
@@ -154,7 +154,7 @@ fn later_rounds_are_compared_with_the_refitted_model() {
     let held_out = cross_validate(
         &ctx,
         std::slice::from_ref(refit),
-        &base_params(refit),
+        &refit_params(refit, false),
         opts.max_evals,
     )
     .rmse();
