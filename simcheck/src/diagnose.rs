@@ -488,12 +488,30 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
             break;
         };
         let added = fit_all(&ctx, &starts, &params, ev_n);
-        cur = fit_all(
-            &ctx,
-            std::slice::from_ref(&added),
-            &all_params(&added, ds.kappa.is_some()),
-            ev_n * 2,
-        );
+        let joint = |start: &Config| {
+            fit_all(
+                &ctx,
+                std::slice::from_ref(start),
+                &all_params(start, ds.kappa.is_some()),
+                ev_n * 2,
+            )
+        };
+        cur = joint(&added);
+        // Without the effect just accepted, the base fit may have driven the resistance floor
+        // far from where it belongs (to nothing, when a missing sensitivity loss looked like
+        // less saturation); the search seldom walks it back that far, and another effect then
+        // stands in for it. So the joint refit also starts from the start model's floor, and
+        // the better fit wins.
+        if added.r_floor_ohm > 0.0 && cfg0.r_floor_ohm > 0.0 {
+            let reset = Config {
+                r_floor_ohm: cfg0.r_floor_ohm,
+                ..added.clone()
+            };
+            let alt = joint(&reset);
+            if train_sse(&ctx, &alt) < train_sse(&ctx, &cur) {
+                cur = alt;
+            }
+        }
         // The next round's candidates start from the jointly refitted model and refit all its
         // parameters per fold: the model they must beat is held out the same way. (Comparing
         // them with the accepted candidate's own cross-validation credited every one of them
@@ -606,6 +624,16 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
             None => None,
         },
         seconds: t0.elapsed().as_secs_f64(),
+    }
+}
+
+/// Whole-recording training SSE of a model (on the search's strided samples).
+fn train_sse(ctx: &Context, cfg: &Config) -> f64 {
+    let v = crate::model::evaluate_with(ctx, cfg, &|_| true, ctx.search_stride(), false).train_sse;
+    if v.is_finite() {
+        v
+    } else {
+        f64::MAX
     }
 }
 

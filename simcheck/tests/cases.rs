@@ -172,3 +172,32 @@ fn later_rounds_are_compared_with_the_refitted_model() {
         );
     }
 }
+
+/// Without the sensitivity loss in the model, the base fit on this seed drives the resistance
+/// floor to almost nothing (a loss of sensitivity at high curvature looks like less
+/// saturation). Once the loss is in, the joint refit must bring the floor back to the world's
+/// 350 ohm, instead of leaving crosstalk to stand in for it (what it did before the refit also
+/// started from the start model's floor).
+#[test]
+fn the_floor_comes_back_once_the_effect_that_hid_it_is_named() {
+    use taxel_simcheck::data::Dataset;
+    use taxel_simcheck::diagnose::{diagnose, Options};
+    let case = Case::CurvatureSensitivity;
+    let rec = taxel_simcheck::refworld::generate(case, 24, 300.0);
+    let mut start = taxel_sim::SensorModel::default();
+    start.material.r_floor_ohm = case.start_floor_ohm();
+    let (ds, _) = Dataset::from_recording(rec, 4, 4, &start.readout, true).expect("dataset");
+    let d = diagnose(&ds, &start, &Options::default());
+    assert!(
+        d.base.r_floor_ohm < 35.0,
+        "premise: the base fit collapses the floor here ({} ohm)",
+        d.base.r_floor_ohm
+    );
+    let named: Vec<&str> = d.effects.iter().map(|e| e.name.as_str()).collect();
+    assert_eq!(named, ["curvature_sensitivity"]);
+    assert!(
+        (d.final_cfg.r_floor_ohm - 350.0).abs() < 35.0,
+        "floor {} ohm",
+        d.final_cfg.r_floor_ohm
+    );
+}
