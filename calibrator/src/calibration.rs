@@ -267,7 +267,7 @@ pub fn validate_model(name: &str, spec: &ModelSpec) -> Result<Model, String> {
                         t.s, t.c
                     ));
                 }
-                if t.s + t.c > 6 {
+                if u64::from(t.s) + u64::from(t.c) > 6 {
                     return Err(format!(
                         "block {name:?}: term S^{} C^{} exceeds total degree 6",
                         t.s, t.c
@@ -500,6 +500,12 @@ mod tests {
             (edit("nodes = [", "nodes = [99, "), "does not exist"),
             (edit("nodes = [", "nodes = [5, "), "listed twice"),
             (edit("rows = 4", "rows = 40"), "1..=32"),
+            // Found by the calibration fuzzer: the powers' sum overflowed (and in a release
+            // build wrapped to 0, so the term passed the degree check).
+            (
+                edit("s = 1, c = 0", "s = 4294967295, c = 1"),
+                "exceeds total degree 6",
+            ),
             (SIM[..SIM.len() / 2].to_string(), ""),
             ("\u{0}\u{1}garbage".to_string(), ""),
         ];
