@@ -84,12 +84,13 @@ for t in "${targets[@]}"; do
         while IFS= read -r line; do printf '%5d %s\n' $((SECONDS - start)) "$line"; done >"$log"
     rc=${PIPESTATUS[0]}
     set -e
-    # Plateau: the elapsed time of the last line that grew coverage (cov:) or features (ft:).
+    # Plateau: the elapsed time of the last line that grew coverage (cov:) or features (ft:);
+    # a REDUCE line can grow them too (the shorter input reaches an edge the longer one did not).
     last=$(grep -E ' #[0-9]+[[:space:]]+(NEW|REDUCE|INITED|pulse|DONE)' "$log" | tail -n 1 || true)
-    last_cov=$( (grep -E ' #[0-9]+[[:space:]]+(NEW|INITED)' "$log" || true) | awk '
+    last_cov=$( (grep -E ' #[0-9]+[[:space:]]+(NEW|REDUCE|INITED)' "$log" || true) | awk '
         { for (i = 1; i <= NF; i++) if ($i == "cov:") c = $(i + 1) }
         c != prev { t = $1; prev = c } END { print t }')
-    last_ft=$( (grep -E ' #[0-9]+[[:space:]]+(NEW|INITED)' "$log" || true) | awk '
+    last_ft=$( (grep -E ' #[0-9]+[[:space:]]+(NEW|REDUCE|INITED)' "$log" || true) | awk '
         { for (i = 1; i <= NF; i++) if ($i == "ft:") f = $(i + 1) }
         f != prev { t = $1; prev = f } END { print t }')
     execs=$(sed -n 's/.*stat::number_of_executed_units: *//p' "$log" | tail -n 1)
