@@ -500,9 +500,14 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
         // Without the effect just accepted, the base fit may have driven the resistance floor
         // far from where it belongs (to nothing, when a missing sensitivity loss looked like
         // less saturation); the search seldom walks it back that far, and another effect then
-        // stands in for it. So the joint refit also starts from the start model's floor, and
-        // the better fit wins.
-        if added.r_floor_ohm > 0.0 && cfg0.r_floor_ohm > 0.0 {
+        // stands in for it. So when the floor has moved more than fourfold, the joint refit also
+        // starts from the start model's floor, and the better fit wins. (A second refit costs
+        // about a third of a diagnosis; a floor within a factor of four needs no rescue.)
+        let moved = (added.r_floor_ohm / cfg0.r_floor_ohm.max(1e-300))
+            .ln()
+            .abs()
+            > 4f64.ln();
+        if added.r_floor_ohm > 0.0 && cfg0.r_floor_ohm > 0.0 && moved {
             let reset = Config {
                 r_floor_ohm: cfg0.r_floor_ohm,
                 ..added.clone()
