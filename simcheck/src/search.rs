@@ -446,10 +446,6 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
     (starts, params)
 }
 
-/// The variants of candidate `e` to try: one, except creep, which is also tried with a third
-/// Prony term between the other two, and a latent thermal drift, which is tried at each
-/// resolution of [`latent_resolutions`] (the caller keeps the variant the criterion likes
-/// best).
 /// What a model's held-out test refits on each training fold: the exponent and every parameter
 /// of its effects, so no effect parameter is fitted on the half it is tested on. The resistance
 /// floor only when saturation is one of the effects: it is slow to search and rarely trades off
@@ -480,6 +476,10 @@ pub fn candidates(ctx: &Context, cur: &Config, e: EffectKind) -> Vec<(Vec<Config
         .collect()
 }
 
+/// The variants of candidate `e` to try, with the effect's own parameters: one, except creep,
+/// which is also tried with a third Prony term between the other two, and a latent thermal
+/// drift, which is tried at each resolution of [`latent_resolutions`] (the caller keeps the
+/// variant the criterion likes best).
 fn candidate_variants(
     ctx: &Context,
     cur: &Config,
