@@ -609,10 +609,17 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
                 let c = cal_s.clone();
                 move |n| {
                     let mut best: Option<CaseResult> = None;
-                    for (k, r) in [1000.0, 2000.0, 5000.0, 10000.0, 20000.0]
-                        .iter()
-                        .enumerate()
-                    {
+                    let mut last_miss = String::new();
+                    // The lowest rate gets three tries: on a loaded machine one short run can
+                    // lose its start to process start-up (a measurement, not a verdict).
+                    let tries = [1000.0, 1000.0, 1000.0, 2000.0, 5000.0, 10000.0, 20000.0];
+                    for (k, r) in tries.iter().enumerate() {
+                        if *r == 1000.0 && best.is_some() {
+                            continue;
+                        }
+                        if *r > 1000.0 && best.is_none() {
+                            break;
+                        }
                         let mut res = force_path(
                             "max_rate_zero_loss",
                             "event",
@@ -622,13 +629,25 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
                             &c,
                         )?;
                         res.rate_hz = *r;
-                        let lossless = res.dropped == 0.0 && res.received > 0.5 * r * secs.min(3.0);
+                        let expected = r * secs.min(3.0);
+                        let lossless = res.dropped == 0.0 && res.received > 0.5 * expected;
                         if !lossless {
+                            last_miss = format!(
+                                "{} dropped, {} of about {expected:.0} received",
+                                res.dropped, res.received
+                            );
+                            if *r == 1000.0 {
+                                continue;
+                            }
                             break;
                         }
                         best = Some(res);
                     }
-                    best.ok_or_else(|| anyhow::anyhow!("lost frames even at 1 kHz"))
+                    best.ok_or_else(|| {
+                        anyhow::anyhow!(
+                            "lost frames even at 1 kHz in three tries (last: {last_miss})"
+                        )
+                    })
                 }
             }),
         ),
