@@ -13,7 +13,7 @@ use crate::locate::{locate, node_stats, spans, Findings};
 use crate::model::{evaluate, max_scan_skew, Config, Context, EffectKind, Thermal};
 use crate::search::{
     all_params, applicable, base_params, candidates, compare, cross_validate, fit_all, n_params,
-    refit_params, resid_stats, Cv, Param, Verdict,
+    refit_params, resid_stats, train_sse, Cv, Param, Verdict,
 };
 
 /// The best candidate of a round: effect, its cross-validation, verdict, starts and params.
@@ -513,7 +513,7 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
                 ..added.clone()
             };
             let alt = joint(&reset);
-            if train_sse(&ctx, &alt) < train_sse(&ctx, &cur) {
+            if train_sse(&ctx, &alt, &|_| true) < train_sse(&ctx, &cur, &|_| true) {
                 cur = alt;
             }
         }
@@ -629,16 +629,6 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
             None => None,
         },
         seconds: t0.elapsed().as_secs_f64(),
-    }
-}
-
-/// Whole-recording training SSE of a model (on the search's strided samples).
-fn train_sse(ctx: &Context, cfg: &Config) -> f64 {
-    let v = crate::model::evaluate_with(ctx, cfg, &|_| true, ctx.search_stride(), false).train_sse;
-    if v.is_finite() {
-        v
-    } else {
-        f64::MAX
     }
 }
 

@@ -193,6 +193,17 @@ pub fn nelder_mead(
     (best.0, best.1)
 }
 
+/// The search's objective: the training SSE of `cfg` on the samples where `train` holds (every
+/// `search_stride`-th one), `f64::MAX` when the model does not evaluate to a finite number.
+pub fn train_sse(ctx: &Context, cfg: &Config, train: &dyn Fn(usize) -> bool) -> f64 {
+    let v = evaluate_with(ctx, cfg, train, ctx.search_stride(), false).train_sse;
+    if v.is_finite() {
+        v
+    } else {
+        f64::MAX
+    }
+}
+
 /// Fits the listed parameters of `cfg` on the samples where `train` holds: a coarse grid over
 /// the alternative starting points `starts`, then Nelder-Mead from the best.
 pub fn fit(
@@ -202,15 +213,7 @@ pub fn fit(
     train: &dyn Fn(usize) -> bool,
     max_evals: usize,
 ) -> Config {
-    let stride = ctx.search_stride();
-    let objective = |c: &Config| -> f64 {
-        let v = evaluate_with(ctx, c, train, stride, false).train_sse;
-        if v.is_finite() {
-            v
-        } else {
-            f64::MAX
-        }
-    };
+    let objective = |c: &Config| train_sse(ctx, c, train);
     let mut best: Option<(Config, f64)> = None;
     for s in starts {
         let v = objective(s);
