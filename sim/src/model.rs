@@ -190,16 +190,34 @@ impl Default for Creep {
     }
 }
 
-/// Rate-independent hysteresis as a Prandtl-Ishlinskii sum of play operators on the local load:
-/// `F_eff = (1 - w) F + w mean_r play_r(F)`.
+/// Rate-independent hysteresis on the local load, in one of two forms:
+/// - a Prandtl-Ishlinskii sum of play operators, `F_eff = (1 - w) F + w mean_r play_r(F)`
+///   (`thresholds_n`; return-point memory: a reload retraces the branch it left);
+/// - a Bouc-Wen state, `F_eff = F + w z`, `dz = dF - (|dF| z + dF |z|) / (2 z_s)`
+///   (`bouc_wen_saturation_n` = `z_s`; no return-point memory, smooth saturation). Its input
+///   is the total force through a play of half-width `input_deadband_n`, which keeps a noisy
+///   driven force from ratcheting the state.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Hysteresis {
-    /// Share of the load that passes through the play operators, `w` (fraction). Negative
-    /// weights turn the loop around (the loading branch above the unloading one).
+    /// Share of the load that passes through the play operators, `w` (fraction), or the
+    /// Bouc-Wen state's weight. Negative weights turn the loop around (the loading branch above
+    /// the unloading one).
     pub weight: f64,
-    /// Half-widths of the play operators (N of local load).
+    /// Half-widths of the play operators (N of local load); empty with the Bouc-Wen form.
+    #[serde(default)]
     pub thresholds_n: Vec<f64>,
+    /// Bouc-Wen form: the state's saturation `z_s` (N of local load).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bouc_wen_saturation_n: Option<f64>,
+    /// Bouc-Wen form: half-width (N of total force) of the play that takes load-cell noise out
+    /// of the force before the state sees it (0: none).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub input_deadband_n: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl Default for Hysteresis {
@@ -207,6 +225,8 @@ impl Default for Hysteresis {
         Hysteresis {
             weight: 0.1,
             thresholds_n: vec![0.1, 0.3, 0.6, 1.0],
+            bouc_wen_saturation_n: None,
+            input_deadband_n: 0.0,
         }
     }
 }
@@ -481,9 +501,25 @@ impl SensorModel {
                 h.weight.is_finite() && (-1.0..=1.0).contains(&h.weight),
                 "hysteresis.weight must be in -1..=1",
             )?;
+            match h.bouc_wen_saturation_n {
+                None => check(
+                    !h.thresholds_n.is_empty() && h.thresholds_n.iter().all(|r| finite_nonneg(*r)),
+                    "hysteresis.thresholds_n must be non-empty and >= 0",
+                )?,
+                Some(zs) => {
+                    check(
+                        zs.is_finite() && zs > 0.0,
+                        "hysteresis.bouc_wen_saturation_n must be > 0",
+                    )?;
+                    check(
+                        h.thresholds_n.is_empty(),
+                        "hysteresis: thresholds_n (play operators) and bouc_wen_saturation_n (Bouc-Wen) exclude each other",
+                    )?;
+                }
+            }
             check(
-                !h.thresholds_n.is_empty() && h.thresholds_n.iter().all(|r| finite_nonneg(*r)),
-                "hysteresis.thresholds_n must be non-empty and >= 0",
+                finite_nonneg(h.input_deadband_n),
+                "hysteresis.input_deadband_n must be >= 0",
             )?;
         }
         if let Some(t) = &self.thermal_drift {

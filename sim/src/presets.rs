@@ -27,6 +27,7 @@ pub fn preset(name: &str) -> Option<SensorModel> {
             m.hysteresis = Some(crate::model::Hysteresis {
                 weight: 0.06,
                 thresholds_n: vec![0.1, 0.3, 0.6, 1.0],
+                ..Default::default()
             });
         }
         "alt" => {

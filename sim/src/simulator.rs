@@ -111,10 +111,14 @@ impl Simulator {
             (tr, tau * r.uniform(), tau * r.uniform())
         });
         let creep_terms = model.creep.as_ref().map_or(0, |c| c.tau_s.len());
-        let hyst_terms = model
-            .hysteresis
-            .as_ref()
-            .map_or(0, |h| h.thresholds_n.len());
+        // Play operators: one state each. Bouc-Wen: the state, its last input, the deadband play.
+        let hyst_terms = model.hysteresis.as_ref().map_or(0, |h| {
+            if h.bouc_wen_saturation_n.is_some() {
+                3
+            } else {
+                h.thresholds_n.len()
+            }
+        });
         Ok(Simulator {
             model: model.clone(),
             timeline,
@@ -344,16 +348,36 @@ impl Simulator {
                 _ => force_n,
             };
             let mut f = f_total * weights[k];
-            if let Some(h) = &self.model.hysteresis {
-                let m = h.thresholds_n.len();
-                let states = &mut self.hyst[k * m..(k + 1) * m];
-                let mut sum = 0.0;
-                for (z, r) in states.iter_mut().zip(&h.thresholds_n) {
-                    let start = if driven { f + r } else { 0.0 };
-                    *z = if z.is_nan() { start } else { *z }.clamp(f - r, f + r);
-                    sum += *z;
+            match &self.model.hysteresis {
+                Some(h) if h.bouc_wen_saturation_n.is_some() => {
+                    // Bouc-Wen: a virgin state (z = 0) in both modes; see `Hysteresis`.
+                    let zs = h.bouc_wen_saturation_n.unwrap_or(1.0);
+                    let st = &mut self.hyst[k * 3..k * 3 + 3];
+                    if st[0].is_nan() {
+                        st.fill(0.0);
+                    }
+                    let l = f_total.max(0.0);
+                    let eps = h.input_deadband_n;
+                    st[2] = st[2].clamp(l - eps, l + eps);
+                    let u = st[2].max(0.0) * weights[k];
+                    let du = u - st[1];
+                    st[1] = u;
+                    let z = st[0];
+                    st[0] = (z + du - (du.abs() * z + du * z.abs()) / (2.0 * zs)).clamp(-zs, zs);
+                    f += h.weight * st[0];
                 }
-                f = (1.0 - h.weight) * f + h.weight * sum / m as f64;
+                Some(h) => {
+                    let m = h.thresholds_n.len();
+                    let states = &mut self.hyst[k * m..(k + 1) * m];
+                    let mut sum = 0.0;
+                    for (z, r) in states.iter_mut().zip(&h.thresholds_n) {
+                        let start = if driven { f + r } else { 0.0 };
+                        *z = if z.is_nan() { start } else { *z }.clamp(f - r, f + r);
+                        sum += *z;
+                    }
+                    f = (1.0 - h.weight) * f + h.weight * sum / m as f64;
+                }
+                None => {}
             }
             if let Some(c) = &self.model.creep {
                 let m = c.tau_s.len();
@@ -669,7 +693,7 @@ mod tests {
 #[cfg(test)]
 mod driven_tests {
     use super::*;
-    use crate::model::NodeFactors;
+    use crate::model::{Hysteresis, NodeFactors};
 
     #[test]
     fn driven_mode_follows_the_given_inputs_and_node_factors() {
@@ -726,5 +750,90 @@ mod driven_tests {
                 prev = out[0];
             }
         }
+    }
+
+    /// A one-node sensor with Bouc-Wen hysteresis (saturation 0.5 N, weight 0.3) and the given
+    /// input deadband, driven through `forces` at 100 Hz; returns the codes and the states.
+    fn bouc_wen_run(deadband: f64, forces: &[f64]) -> (Vec<f32>, Vec<f64>) {
+        let mut m = SensorModel {
+            rows: 1,
+            cols: 1,
+            ..SensorModel::default()
+        };
+        m.readout.noise_counts = 0.0;
+        m.hysteresis = Some(Hysteresis {
+            weight: 0.3,
+            thresholds_n: Vec::new(),
+            bouc_wen_saturation_n: Some(0.5),
+            input_deadband_n: deadband,
+        });
+        m.validate().expect("a valid Bouc-Wen model");
+        let mut sim = Simulator::new(&m, &Scenario::default()).expect("valid");
+        let mut out = vec![0.0f32; 1];
+        let (mut codes, mut states) = (Vec::new(), Vec::new());
+        for (i, f) in forces.iter().enumerate() {
+            sim.step_driven(i as f64 * 0.01, *f, 0.0, 25.0, 0, &mut out);
+            codes.push(out[0]);
+            states.push(sim.hyst[0]);
+        }
+        (codes, states)
+    }
+
+    #[test]
+    fn bouc_wen_hysteresis_makes_a_loop_and_saturates() {
+        // 0 -> 10 N -> 0 in steps of 0.1 N.
+        let up: Vec<f64> = (0..=100).map(|i| i as f64 * 0.1).collect();
+        let forces: Vec<f64> = up.iter().chain(up.iter().rev()).copied().collect();
+        let (codes, states) = bouc_wen_run(0.0, &forces);
+        // At the top the state sits at its saturation; on the way down it has swung negative.
+        assert!((states[100] - 0.5).abs() < 1e-3, "{}", states[100]);
+        assert!(
+            states[forces.len() - 1] < -0.4,
+            "{}",
+            states[forces.len() - 1]
+        );
+        // At 5 N the loading branch (state +0.5) reads above the unloading one (state -0.5).
+        let (load, unload) = (codes[50], codes[forces.len() - 1 - 50]);
+        assert!(load > unload + 2.0, "loading {load} vs unloading {unload}");
+    }
+
+    #[test]
+    fn an_input_deadband_keeps_force_noise_from_ratcheting_the_bouc_wen_state() {
+        // Load to 5 N, then hold with +-0.02 N of alternating load-cell noise.
+        let mut forces: Vec<f64> = (0..=50).map(|i| i as f64 * 0.1).collect();
+        forces.extend((0..2000).map(|i| 5.0 + if i % 2 == 0 { 0.02 } else { -0.02 }));
+        let (_, raw) = bouc_wen_run(0.0, &forces);
+        let (_, clean) = bouc_wen_run(0.06, &forces);
+        let last = forces.len() - 1;
+        assert!(
+            raw[last] < 0.25,
+            "without a deadband the noise walks it down: {}",
+            raw[last]
+        );
+        assert!(
+            (clean[last] - 0.5).abs() < 0.01,
+            "with one it stays saturated: {}",
+            clean[last]
+        );
+    }
+
+    #[test]
+    fn plays_and_bouc_wen_exclude_each_other() {
+        let mut m = SensorModel {
+            hysteresis: Some(Hysteresis {
+                bouc_wen_saturation_n: Some(0.5),
+                ..Hysteresis::default()
+            }),
+            ..SensorModel::default()
+        };
+        let err = m.validate().expect_err("both forms at once").to_string();
+        assert!(err.contains("exclude each other"), "{err}");
+        m.hysteresis = Some(Hysteresis {
+            thresholds_n: Vec::new(),
+            bouc_wen_saturation_n: Some(0.0),
+            ..Hysteresis::default()
+        });
+        let err = m.validate().expect_err("zero saturation").to_string();
+        assert!(err.contains("bouc_wen_saturation_n"), "{err}");
     }
 }

@@ -142,11 +142,13 @@ pub fn extended_model(
             Hysteresis {
                 weight,
                 thresholds_n,
+                ..Hysteresis::default()
             }
         }
         None => Hysteresis {
             weight: crate::diagnose::hysteresis_weight(ds, cfg, &d.final_theta),
             thresholds_n: vec![r, 4.0 * r],
+            ..Hysteresis::default()
         },
     });
     if cfg.hyst_share.is_some() {
