@@ -194,7 +194,9 @@ impl Default for Creep {
 /// - a Prandtl-Ishlinskii sum of play operators, `F_eff = (1 - w) F + w mean_r play_r(F)`
 ///   (`thresholds_n`; return-point memory: a reload retraces the branch it left);
 /// - a Bouc-Wen state, `F_eff = F + w z`, `dz = dF - (|dF| z + dF |z|) / (2 z_s)`
-///   (`bouc_wen_saturation_n` = `z_s`; no return-point memory, smooth saturation). Its input
+///   (`bouc_wen_saturation_n` = `z_s`; no return-point memory, smooth saturation), or with
+///   an exponent `n`, `dz = dF - (|dF| z + dF |z|) |z|^(n-1) / (2 z_s^n)` (a sharper knee for
+///   `n > 1`). Its input
 ///   is the total force through a play of half-width `input_deadband_n`, which keeps a noisy
 ///   driven force from ratcheting the state.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -210,6 +212,9 @@ pub struct Hysteresis {
     /// Bouc-Wen form: the state's saturation `z_s` (N of local load).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub bouc_wen_saturation_n: Option<f64>,
+    /// Bouc-Wen form: the exponent `n` (default 1).
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub bouc_wen_exponent: f64,
     /// Bouc-Wen form: half-width (N of total force) of the play that takes load-cell noise out
     /// of the force before the state sees it (0: none).
     #[serde(default, skip_serializing_if = "is_zero")]
@@ -220,12 +225,21 @@ fn is_zero(v: &f64) -> bool {
     *v == 0.0
 }
 
+fn one() -> f64 {
+    1.0
+}
+
+fn is_one(v: &f64) -> bool {
+    *v == 1.0
+}
+
 impl Default for Hysteresis {
     fn default() -> Self {
         Hysteresis {
             weight: 0.1,
             thresholds_n: vec![0.1, 0.3, 0.6, 1.0],
             bouc_wen_saturation_n: None,
+            bouc_wen_exponent: 1.0,
             input_deadband_n: 0.0,
         }
     }
@@ -517,6 +531,10 @@ impl SensorModel {
                     )?;
                 }
             }
+            check(
+                h.bouc_wen_exponent.is_finite() && (0.1..=10.0).contains(&h.bouc_wen_exponent),
+                "hysteresis.bouc_wen_exponent must be in 0.1..=10",
+            )?;
             check(
                 finite_nonneg(h.input_deadband_n),
                 "hysteresis.input_deadband_n must be >= 0",

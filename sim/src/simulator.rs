@@ -363,7 +363,14 @@ impl Simulator {
                     let du = u - st[1];
                     st[1] = u;
                     let z = st[0];
-                    st[0] = (z + du - (du.abs() * z + du * z.abs()) / (2.0 * zs)).clamp(-zs, zs);
+                    let n = h.bouc_wen_exponent;
+                    let knee = if n == 1.0 {
+                        1.0
+                    } else {
+                        (z.abs() / zs).powf(n - 1.0)
+                    };
+                    st[0] =
+                        (z + du - (du.abs() * z + du * z.abs()) * knee / (2.0 * zs)).clamp(-zs, zs);
                     f += h.weight * st[0];
                 }
                 Some(h) => {
@@ -752,9 +759,10 @@ mod driven_tests {
         }
     }
 
-    /// A one-node sensor with Bouc-Wen hysteresis (saturation 0.5 N, weight 0.3) and the given
-    /// input deadband, driven through `forces` at 100 Hz; returns the codes and the states.
-    fn bouc_wen_run(deadband: f64, forces: &[f64]) -> (Vec<f32>, Vec<f64>) {
+    /// A one-node sensor with Bouc-Wen hysteresis (saturation 0.5 N, weight 0.3) with the given
+    /// input deadband and exponent, driven through `forces` at 100 Hz; returns the codes and
+    /// the states.
+    fn bouc_wen_run(deadband: f64, exponent: f64, forces: &[f64]) -> (Vec<f32>, Vec<f64>) {
         let mut m = SensorModel {
             rows: 1,
             cols: 1,
@@ -765,6 +773,7 @@ mod driven_tests {
             weight: 0.3,
             thresholds_n: Vec::new(),
             bouc_wen_saturation_n: Some(0.5),
+            bouc_wen_exponent: exponent,
             input_deadband_n: deadband,
         });
         m.validate().expect("a valid Bouc-Wen model");
@@ -784,7 +793,7 @@ mod driven_tests {
         // 0 -> 10 N -> 0 in steps of 0.1 N.
         let up: Vec<f64> = (0..=100).map(|i| i as f64 * 0.1).collect();
         let forces: Vec<f64> = up.iter().chain(up.iter().rev()).copied().collect();
-        let (codes, states) = bouc_wen_run(0.0, &forces);
+        let (codes, states) = bouc_wen_run(0.0, 1.0, &forces);
         // At the top the state sits at its saturation; on the way down it has swung negative.
         assert!((states[100] - 0.5).abs() < 1e-3, "{}", states[100]);
         assert!(
@@ -798,12 +807,23 @@ mod driven_tests {
     }
 
     #[test]
+    fn a_larger_bouc_wen_exponent_sharpens_the_knee() {
+        // From the virgin state, 0.5 N of load (one saturation): z = 0.5 (1 - e^-1) = 0.316
+        // with n = 1; with n = 4 the state runs nearly linearly until close to saturation.
+        let forces: Vec<f64> = (0..=50).map(|i| i as f64 * 0.01).collect();
+        let (_, soft) = bouc_wen_run(0.0, 1.0, &forces);
+        let (_, sharp) = bouc_wen_run(0.0, 4.0, &forces);
+        assert!((soft[50] - 0.316).abs() < 0.01, "{}", soft[50]);
+        assert!(sharp[50] > 0.4 && sharp[50] <= 0.5, "{}", sharp[50]);
+    }
+
+    #[test]
     fn an_input_deadband_keeps_force_noise_from_ratcheting_the_bouc_wen_state() {
         // Load to 5 N, then hold with +-0.02 N of alternating load-cell noise.
         let mut forces: Vec<f64> = (0..=50).map(|i| i as f64 * 0.1).collect();
         forces.extend((0..2000).map(|i| 5.0 + if i % 2 == 0 { 0.02 } else { -0.02 }));
-        let (_, raw) = bouc_wen_run(0.0, &forces);
-        let (_, clean) = bouc_wen_run(0.06, &forces);
+        let (_, raw) = bouc_wen_run(0.0, 1.0, &forces);
+        let (_, clean) = bouc_wen_run(0.06, 1.0, &forces);
         let last = forces.len() - 1;
         assert!(
             raw[last] < 0.25,
