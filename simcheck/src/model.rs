@@ -3,7 +3,7 @@
 //! global parameters (force-law exponent, resistance floor, and each effect's own) are searched.
 //!
 //! Per node `k` and sample `i`: load `L = F` (shifted in time by scan skew, passed through the
-//! hysteresis play operator and the creep low-pass), `p = L^n`; conductance
+//! hysteresis, play operators or a Bouc-Wen state, and the creep low-pass), `p = L^n`; conductance
 //! `G = m_i (b_k + [c_k kappa_i] + a_k s_i p)` with the thermal factor `m`, the curvature
 //! sensitivity `s` and the curvature baseline term; then the resistance floor `G / (1 + r G)`,
 //! the row crosstalk `G (1 - Rs sum_row G)`, and the readout.
@@ -86,6 +86,17 @@ pub struct Config {
     /// of the load needs ten times the total force to cross the same local play); one global
     /// share and no per-node amplitude. `None`: the additive form above.
     pub hyst_share: Option<f64>,
+    /// In-load hysteresis as a Bouc-Wen state instead of the play operators: `F + share z_k`,
+    /// `dz = du - (|du| z + du |z|) / (2 r)` (exponent `hyst_bw_n` = 1) on the node's own load `u = F / load_scale`
+    /// (`r`: the state's saturation, in newtons of the most loaded node's load). Unlike the
+    /// plays it has no return-point memory: a small reversal moves it at once and a reload
+    /// does not retrace, and the loop saturates smoothly. Its input is the recorded force
+    /// through a play of the force noise's width (`Context::force_deadband`): without memory
+    /// the state would otherwise ratchet on the load cell's noise.
+    pub hyst_bouc_wen: bool,
+    /// The Bouc-Wen state's exponent `n` (1: the classic exponential approach to saturation;
+    /// larger: a sharper knee): `dz = du - (|du| z + du |z|) |z|^(n-1) / (2 r^n)`.
+    pub hyst_bw_n: f64,
     pub thermal: Option<Thermal>,
     /// Curvature sensitivity: `kappa_s` (1/m) with a curvature column, else `beta` (per unit
     /// log-baseline shift of the trial).
@@ -113,6 +124,8 @@ impl Config {
             hysteresis: None,
             hyst_mix: 0.0,
             hyst_share: None,
+            hyst_bouc_wen: false,
+            hyst_bw_n: 1.0,
             thermal: None,
             curv_sens: None,
             curv_linear: false,
@@ -151,6 +164,8 @@ impl Config {
             EffectKind::Hysteresis => {
                 c.hysteresis = None;
                 c.hyst_share = None;
+                c.hyst_bouc_wen = false;
+                c.hyst_bw_n = 1.0;
             }
             EffectKind::ThermalDrift => c.thermal = None,
             EffectKind::Crosstalk => c.crosstalk = None,
@@ -198,6 +213,10 @@ pub struct Context<'a> {
     /// loaded node (>= 1), from the nodes' loaded-minus-rest conductance (see `load_scale`).
     /// In-load hysteresis uses it to turn a local half-width into total-force units.
     pub load_scale: Vec<f64>,
+    /// Half-width (N) of the play that takes the load cell's noise out of the force before a
+    /// memoryless hysteresis state sees it: three standard deviations of the force noise,
+    /// estimated from the first differences (median absolute difference / 0.954).
+    pub force_deadband: f64,
 }
 
 impl<'a> Context<'a> {
@@ -255,6 +274,7 @@ impl<'a> Context<'a> {
         let (block, n_blocks) = blocks(ds);
         let creep_tau_max = 3.0 * longest_loaded_span(ds);
         let load_scale = load_scale(ds, &g_obs, &rest);
+        let force_deadband = 3.0 * force_noise_sd(&ds.force);
         Context {
             ds,
             g_obs,
@@ -265,6 +285,7 @@ impl<'a> Context<'a> {
             n_blocks,
             creep_tau_max,
             load_scale,
+            force_deadband,
         }
     }
 
@@ -276,6 +297,17 @@ impl<'a> Context<'a> {
     pub fn fold(&self, i: usize) -> usize {
         self.block[i] % 2
     }
+}
+
+/// Standard deviation of white noise on `f`, from its first differences: their median absolute
+/// value is 0.6745 sqrt(2) sd (ramps are a minority of the samples and barely move the median).
+fn force_noise_sd(f: &[f64]) -> f64 {
+    let mut d: Vec<f64> = f.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+    if d.is_empty() {
+        return 0.0;
+    }
+    d.sort_by(f64::total_cmp);
+    d[d.len() / 2] / (0.6745 * std::f64::consts::SQRT_2)
 }
 
 /// Each node's share of the load relative to the most loaded node, inverted (see
@@ -389,6 +421,61 @@ pub fn load_series(
     }
 }
 
+/// The load through a Bouc-Wen hysteresis state (see [`Config::hyst_bouc_wen`]):
+/// `F + share sc z`, with `z` driven by the node's own load `u = play_eps(F) / sc` and saturating
+/// at `r` with exponent `n` (`[r, n]`). It starts at 0, the textbook virgin state. (Started at
+/// `-r`, a sensor last unloaded, the classic Bouc-Wen reference world's hysteresis recording
+/// re-fitted at 0.891 instead of 0.795 counts with the world's own parameters: a node whose load
+/// never saturates the state keeps its start for good.)
+pub fn bouc_wen_load(
+    force: &[f64],
+    [r, n]: [f64; 2],
+    share: f64,
+    sc: f64,
+    deadband: f64,
+) -> impl Iterator<Item = f64> + '_ {
+    let r = r.max(1e-12);
+    let knee = Knee::new(n);
+    let (mut z, mut u_prev, mut play) = (0.0f64, 0.0f64, 0.0f64);
+    force.iter().map(move |&fi| {
+        let l = fi.max(0.0);
+        play = play.clamp(l - deadband, l + deadband);
+        let u = play.max(0.0) / sc;
+        let du = u - u_prev;
+        u_prev = u;
+        if du != 0.0 {
+            z += du - (du.abs() * z + du * z.abs()) * knee.at(z.abs() / r) / (2.0 * r);
+        }
+        z = z.clamp(-r, r);
+        fi + share * sc * z
+    })
+}
+
+/// `x^(n-1)` on `0..=1`, tabulated (a `powf` per node and sample was most of an evaluation's
+/// time): linear interpolation between 1024 steps, exact for `n = 1` and `n = 2`.
+struct Knee {
+    table: Vec<f64>,
+}
+
+impl Knee {
+    const STEPS: usize = 1024;
+
+    fn new(n: f64) -> Knee {
+        Knee {
+            table: (0..=Self::STEPS)
+                .map(|j| (j as f64 / Self::STEPS as f64).powf(n - 1.0))
+                .collect(),
+        }
+    }
+
+    fn at(&self, x: f64) -> f64 {
+        let pos = x.clamp(0.0, 1.0) * Self::STEPS as f64;
+        let j = (pos as usize).min(Self::STEPS - 1);
+        let w = pos - j as f64;
+        self.table[j] * (1.0 - w) + self.table[j + 1] * w
+    }
+}
+
 /// The longest time (s) the force stays above 10 % of its peak without a break (at least one
 /// sample interval).
 pub fn longest_loaded_span(ds: &Dataset) -> f64 {
@@ -472,6 +559,13 @@ pub fn evaluate_with(
             .load_scale
             .iter()
             .map(|&sc| {
+                if cfg.hyst_bouc_wen {
+                    let f =
+                        bouc_wen_load(&ds.force, [r, cfg.hyst_bw_n], share, sc, ctx.force_deadband);
+                    let mut p = Vec::with_capacity(len);
+                    load_series(f, &dt, cfg, ctx.creep_tau_max, every, &mut p);
+                    return p;
+                }
                 // The two play operators of `play_gap`, run inline (no temporary series).
                 let (r1, r4) = (r * sc, 4.0 * r * sc);
                 let mut z: Option<(f64, f64)> = None;
@@ -845,4 +939,45 @@ fn zhat(th: &[f64], lay: &Layout, cx: f64, hv: f64, sp: f64) -> f64 {
         z += th[th.len() - 2] * hv;
     }
     z + th[th.len() - 1] * sp
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_tabulated_knee_matches_powf() {
+        for n in [1.0, 1.5, 2.0, 2.7, 4.0] {
+            let k = Knee::new(n);
+            for i in 0..=200 {
+                let x = i as f64 / 200.0;
+                let exact = x.powf(n - 1.0);
+                assert!(
+                    (k.at(x) - exact).abs() < 2e-3,
+                    "n {n} x {x}: {} vs {exact}",
+                    k.at(x)
+                );
+            }
+        }
+        // Beyond the table's range it holds the end value.
+        assert_eq!(Knee::new(3.0).at(1.5), 1.0);
+    }
+
+    #[test]
+    fn a_bouc_wen_load_saturates_and_ignores_noise_inside_its_deadband() {
+        // Ramp to 5 N, then hold with +-0.02 N of alternating noise: with a 0.06 N deadband the
+        // state stays at its saturation, and the load is F + share z.
+        let mut f: Vec<f64> = (0..=50).map(|i| i as f64 * 0.1).collect();
+        f.extend((0..500).map(|i| 5.0 + if i % 2 == 0 { 0.02 } else { -0.02 }));
+        let out: Vec<f64> = bouc_wen_load(&f, [0.5, 2.0], 0.4, 1.0, 0.06).collect();
+        let last = f.len() - 1;
+        assert!(
+            (out[last] - f[last] - 0.4 * 0.5).abs() < 1e-3,
+            "{}",
+            out[last] - f[last]
+        );
+        // Without the deadband the noise walks the state down.
+        let raw: Vec<f64> = bouc_wen_load(&f, [0.5, 1.0], 0.4, 1.0, 0.0).collect();
+        assert!(raw[last] - f[last] < 0.4 * 0.25, "{}", raw[last] - f[last]);
+    }
 }

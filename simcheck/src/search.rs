@@ -25,6 +25,7 @@ pub enum Param {
     HystLnR,
     HystMix,
     HystShare,
+    HystLnN,
     ThermAlpha,
     ThermLnTau,
     CurvLnK,
@@ -48,6 +49,7 @@ impl Param {
             Param::HystLnR => c.hysteresis.map_or(0.0, |r| r.max(1e-9).ln()),
             Param::HystMix => c.hyst_mix,
             Param::HystShare => c.hyst_share.unwrap_or(0.0),
+            Param::HystLnN => c.hyst_bw_n.ln(),
             Param::ThermAlpha => match &c.thermal {
                 Some(Thermal::Recorded { alpha_per_k, .. }) => alpha_per_k * 100.0,
                 _ => 0.0,
@@ -89,6 +91,7 @@ impl Param {
                     *a = v.clamp(-2.0, 2.0);
                 }
             }
+            Param::HystLnN => c.hyst_bw_n = v.clamp(0.5f64.ln(), 4f64.ln()).exp(),
             Param::ThermAlpha => {
                 if let Some(Thermal::Recorded { alpha_per_k, .. }) = &mut c.thermal {
                     *alpha_per_k = (v / 100.0).clamp(-0.09, 0.09);
@@ -112,6 +115,7 @@ impl Param {
             Param::CreepC(_) => 0.03,
             Param::ThermAlpha => 0.1,
             Param::HystShare => 0.1,
+            Param::HystLnN => 0.3,
             Param::CurvBeta => 0.5,
             Param::LnExponent => 0.05,
             _ => 0.5,
@@ -522,7 +526,23 @@ fn candidate_variants(
             .collect();
         let mut p_load = params.clone();
         p_load.push(Param::HystShare);
-        return vec![(starts, params), (in_load, p_load)];
+        // The Bouc-Wen state in the load path: the same half-widths as saturations, both signs,
+        // and its exponent (charged like the plays' mix).
+        let bouc_wen: Vec<Config> = in_load
+            .iter()
+            .map(|s| Config {
+                hyst_bouc_wen: true,
+                hyst_mix: 0.0,
+                ..s.clone()
+            })
+            .collect();
+        let mut p_bw: Vec<Param> = params
+            .iter()
+            .copied()
+            .filter(|p| *p != Param::HystMix)
+            .collect();
+        p_bw.extend([Param::HystShare, Param::HystLnN]);
+        return vec![(starts, params), (in_load, p_load), (bouc_wen, p_bw)];
     }
     if e != EffectKind::ThermalDrift || ctx.ds.temp.is_some() {
         return vec![(starts, params)];
@@ -557,7 +577,11 @@ pub fn all_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
     }
     if cfg.hysteresis.is_some() {
         p.push(Param::HystLnR);
-        p.push(Param::HystMix);
+        p.push(if cfg.hyst_bouc_wen {
+            Param::HystLnN
+        } else {
+            Param::HystMix
+        });
         if cfg.hyst_share.is_some() {
             p.push(Param::HystShare);
         }
@@ -594,6 +618,7 @@ pub struct ParamCount {
 pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
     let (global, per_node) = match e {
         EffectKind::Creep => (2 * cfg.creep.as_ref().map_or(2, Vec::len), 0),
+        // In the load path: half-width, mix and share; or Bouc-Wen saturation, exponent, share.
         EffectKind::Hysteresis if cfg.hyst_share.is_some() => (3, 0),
         EffectKind::Hysteresis => (2, 1),
         EffectKind::ThermalDrift => match &cfg.thermal {
