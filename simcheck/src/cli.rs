@@ -175,14 +175,11 @@ pub fn summary(ds: &Dataset, d: &crate::diagnose::Diagnosis) -> String {
 }
 
 fn parse_case(slug: &str) -> anyhow::Result<Case> {
-    Case::ALL
-        .iter()
-        .copied()
-        .find(|c| c.slug() == slug)
-        .ok_or_else(|| {
-            let all: Vec<String> = Case::ALL.iter().map(|c| c.slug()).collect();
-            anyhow::anyhow!("unknown case {slug:?}; one of {}", all.join(", "))
-        })
+    let known = || Case::ALL.iter().chain(&Case::EXTRA).copied();
+    known().find(|c| c.slug() == slug).ok_or_else(|| {
+        let all: Vec<String> = known().map(|c| c.slug()).collect();
+        anyhow::anyhow!("unknown case {slug:?}; one of {}", all.join(", "))
+    })
 }
 
 /// One row of the proof table.
