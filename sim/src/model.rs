@@ -196,9 +196,8 @@ impl Default for Creep {
 /// - a Bouc-Wen state, `F_eff = F + w z`, `dz = dF - (|dF| z + dF |z|) / (2 z_s)`
 ///   (`bouc_wen_saturation_n` = `z_s`; no return-point memory, smooth saturation), or with
 ///   an exponent `n`, `dz = dF - (|dF| z + dF |z|) |z|^(n-1) / (2 z_s^n)` (a sharper knee for
-///   `n > 1`). Its input
-///   is the total force through a play of half-width `input_deadband_n`, which keeps a noisy
-///   driven force from ratcheting the state.
+///   `n > 1`). Its input is the total force through a play of half-width `input_deadband_n`,
+///   which keeps a noisy driven force from ratcheting the state.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Hysteresis {

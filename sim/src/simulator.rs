@@ -348,10 +348,9 @@ impl Simulator {
                 _ => force_n,
             };
             let mut f = f_total * weights[k];
-            match &self.model.hysteresis {
-                Some(h) if h.bouc_wen_saturation_n.is_some() => {
+            if let Some(h) = &self.model.hysteresis {
+                if let Some(zs) = h.bouc_wen_saturation_n {
                     // Bouc-Wen: a virgin state (z = 0) in both modes; see `Hysteresis`.
-                    let zs = h.bouc_wen_saturation_n.unwrap_or(1.0);
                     let st = &mut self.hyst[k * 3..k * 3 + 3];
                     if st[0].is_nan() {
                         st.fill(0.0);
@@ -372,8 +371,7 @@ impl Simulator {
                     st[0] =
                         (z + du - (du.abs() * z + du * z.abs()) * knee / (2.0 * zs)).clamp(-zs, zs);
                     f += h.weight * st[0];
-                }
-                Some(h) => {
+                } else {
                     let m = h.thresholds_n.len();
                     let states = &mut self.hyst[k * m..(k + 1) * m];
                     let mut sum = 0.0;
@@ -384,7 +382,6 @@ impl Simulator {
                     }
                     f = (1.0 - h.weight) * f + h.weight * sum / m as f64;
                 }
-                None => {}
             }
             if let Some(c) = &self.model.creep {
                 let m = c.tau_s.len();
