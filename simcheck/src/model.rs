@@ -3,10 +3,10 @@
 //! global parameters (force-law exponent, resistance floor, and each effect's own) are searched.
 //!
 //! Per node `k` and sample `i`: load `L = F` (shifted in time by scan skew, passed through the
-//! hysteresis, play operators or a Bouc-Wen state, and the creep low-pass), `p = L^n`; conductance
-//! `G = m_i (b_k + [c_k kappa_i] + a_k s_i p)` with the thermal factor `m`, the curvature
-//! sensitivity `s` and the curvature baseline term; then the resistance floor `G / (1 + r G)`,
-//! the row crosstalk `G (1 - Rs sum_row G)`, and the readout.
+//! hysteresis, play operators or a Bouc-Wen state, and the creep low-pass), `p = L^n`;
+//! conductance `G = m_i (b_k + [c_k kappa_i] + a_k s_i p)` with the thermal factor `m`, the
+//! curvature sensitivity `s` and the curvature baseline term; then the resistance floor
+//! `G / (1 + r G)`, the row crosstalk `G (1 - Rs sum_row G)`, and the readout.
 
 use crate::data::{Dataset, ReadoutMap};
 pub use crate::numeric::{centre_by_level, play_gap, solve_spd};
@@ -87,12 +87,12 @@ pub struct Config {
     /// share and no per-node amplitude. `None`: the additive form above.
     pub hyst_share: Option<f64>,
     /// In-load hysteresis as a Bouc-Wen state instead of the play operators: `F + share z_k`,
-    /// `dz = du - (|du| z + du |z|) / (2 r)` (exponent `hyst_bw_n` = 1) on the node's own load `u = F / load_scale`
-    /// (`r`: the state's saturation, in newtons of the most loaded node's load). Unlike the
-    /// plays it has no return-point memory: a small reversal moves it at once and a reload
-    /// does not retrace, and the loop saturates smoothly. Its input is the recorded force
-    /// through a play of the force noise's width (`Context::force_deadband`): without memory
-    /// the state would otherwise ratchet on the load cell's noise.
+    /// `dz = du - (|du| z + du |z|) / (2 r)` (exponent `hyst_bw_n` = 1) on the node's own load
+    /// `u = F / load_scale` (`r`: the state's saturation, in newtons of the most loaded node's
+    /// load). Unlike the plays it has no return-point memory: a small reversal moves it at
+    /// once and a reload does not retrace, and the loop saturates smoothly. Its input is the
+    /// recorded force through a play of the force noise's width (`Context::force_deadband`):
+    /// without memory the state would otherwise ratchet on the load cell's noise.
     pub hyst_bouc_wen: bool,
     /// The Bouc-Wen state's exponent `n` (1: the classic exponential approach to saturation;
     /// larger: a sharper knee): `dz = du - (|du| z + du |z|) |z|^(n-1) / (2 r^n)`.

@@ -2,12 +2,12 @@
 //! diagnosis on recordings where an effect is concealed. Its functional forms differ on
 //! purpose: log-time creep (a six-decade spectrum of relaxations; the tool fits two Prony
 //! terms), Bouc-Wen hysteresis with n = 2 and beta = 3 gamma (the tool fits play operators
-//! or a Bouc-Wen state with n = 1 and beta = gamma), an exponential temperature law behind a
-//! two-stage thermal lag (the tool: linear, one lag), a linear curvature sensitivity loss (the tool: 1/(1 + kappa/kappa_s)), the
-//! exact crosstalk network with op-amp offsets (the tool: first-order row droop), scan skew
-//! with row-switch settling, and a soft-knee saturation. Noise is white plus AR(1) plus ADC
-//! rounding, and the reference force carries load-cell noise. Effects are small: the aggregate
-//! error barely moves.
+//! or a symmetric Bouc-Wen state, beta = gamma, with a fitted exponent), an exponential
+//! temperature law behind a two-stage thermal lag (the tool: linear, one lag), a linear
+//! curvature sensitivity loss (the tool: 1/(1 + kappa/kappa_s)), the exact crosstalk network
+//! with op-amp offsets (the tool: first-order row droop), scan skew with row-switch settling,
+//! and a soft-knee saturation. Noise is white plus AR(1) plus ADC rounding, and the reference
+//! force carries load-cell noise. Effects are small: the aggregate error barely moves.
 
 use std::path::PathBuf;
 
@@ -285,8 +285,8 @@ pub fn generate(case: Case, seed: u64, duration_s: f64) -> Recording {
             if hyst {
                 // Bouc-Wen on the local load with n = 2 and beta = 3 gamma (A = 1): the state
                 // saturates at (1 / (beta + gamma))^(1/2) = 0.25 N, sharply, and the loop is
-                // asymmetric (unloading first steepens). The tool's Bouc-Wen has n = 1 and
-                // beta = gamma; its play operators have return-point memory.
+                // asymmetric (unloading first steepens). The tool's Bouc-Wen has beta = gamma
+                // (its n is fitted); its play operators have return-point memory.
                 let df = f - f_prev[k];
                 let z = bw_z[k];
                 bw_z[k] = z + df - 12.0 * df.abs() * z.abs() * z - 4.0 * df * z * z;
