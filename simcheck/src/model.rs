@@ -274,7 +274,7 @@ impl<'a> Context<'a> {
         let (block, n_blocks) = blocks(ds);
         let creep_tau_max = 3.0 * longest_loaded_span(ds);
         let load_scale = load_scale(ds, &g_obs, &rest);
-        let force_deadband = 3.0 * force_noise_sd(&ds.force);
+        let force_deadband = force_deadband(&ds.force);
         Context {
             ds,
             g_obs,
@@ -299,15 +299,16 @@ impl<'a> Context<'a> {
     }
 }
 
-/// Standard deviation of white noise on `f`, from its first differences: their median absolute
-/// value is 0.6745 sqrt(2) sd (ramps are a minority of the samples and barely move the median).
-fn force_noise_sd(f: &[f64]) -> f64 {
+/// The Bouc-Wen input's deadband (see [`Context::force_deadband`]): three standard deviations
+/// of the white noise on `f`, estimated from its first differences, whose median absolute value
+/// is 0.6745 sqrt(2) sd (ramps are a minority of the samples and barely move the median).
+pub fn force_deadband(f: &[f64]) -> f64 {
     let mut d: Vec<f64> = f.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
     if d.is_empty() {
         return 0.0;
     }
     d.sort_by(f64::total_cmp);
-    d[d.len() / 2] / (0.6745 * std::f64::consts::SQRT_2)
+    3.0 * d[d.len() / 2] / (0.6745 * std::f64::consts::SQRT_2)
 }
 
 /// Each node's share of the load relative to the most loaded node, inverted (see
@@ -423,19 +424,19 @@ pub fn load_series(
 
 /// The load through a Bouc-Wen hysteresis state (see [`Config::hyst_bouc_wen`]):
 /// `F + share sc z`, with `z` driven by the node's own load `u = play_eps(F) / sc` and saturating
-/// at `r` with exponent `n` (`[r, n]`). It starts at 0, the textbook virgin state. (Started at
+/// at `r` with the exponent `knee` was tabulated for. It starts at 0, the textbook virgin state. (Started at
 /// `-r`, a sensor last unloaded, the classic Bouc-Wen reference world's hysteresis recording
 /// re-fitted at 0.891 instead of 0.795 counts with the world's own parameters: a node whose load
 /// never saturates the state keeps its start for good.)
-pub fn bouc_wen_load(
-    force: &[f64],
-    [r, n]: [f64; 2],
+pub fn bouc_wen_load<'a>(
+    force: &'a [f64],
+    r: f64,
+    knee: &'a Knee,
     share: f64,
     sc: f64,
     deadband: f64,
-) -> impl Iterator<Item = f64> + '_ {
+) -> impl Iterator<Item = f64> + 'a {
     let r = r.max(1e-12);
-    let knee = Knee::new(n);
     let (mut z, mut u_prev, mut play) = (0.0f64, 0.0f64, 0.0f64);
     force.iter().map(move |&fi| {
         let l = fi.max(0.0);
@@ -453,14 +454,14 @@ pub fn bouc_wen_load(
 
 /// `x^(n-1)` on `0..=1`, tabulated (a `powf` per node and sample was most of an evaluation's
 /// time): linear interpolation between 1024 steps, exact for `n = 1` and `n = 2`.
-struct Knee {
+pub struct Knee {
     table: Vec<f64>,
 }
 
 impl Knee {
     const STEPS: usize = 1024;
 
-    fn new(n: f64) -> Knee {
+    pub fn new(n: f64) -> Knee {
         Knee {
             table: (0..=Self::STEPS)
                 .map(|j| (j as f64 / Self::STEPS as f64).powf(n - 1.0))
@@ -554,14 +555,14 @@ pub fn evaluate_with(
     let every = if want_pred || skew != 0.0 { 1 } else { stride };
     // Loads: one series for all nodes (per node with in-load hysteresis); scan skew shifts
     // node k by k * dt_node to first order, p_k(t) = p(t) + k dt_node dp/dt.
+    let knee = cfg.hyst_bouc_wen.then(|| Knee::new(cfg.hyst_bw_n));
     let loads: Vec<Vec<f64>> = match (cfg.hysteresis, cfg.hyst_share) {
         (Some(r), Some(share)) => ctx
             .load_scale
             .iter()
             .map(|&sc| {
-                if cfg.hyst_bouc_wen {
-                    let f =
-                        bouc_wen_load(&ds.force, [r, cfg.hyst_bw_n], share, sc, ctx.force_deadband);
+                if let Some(knee) = &knee {
+                    let f = bouc_wen_load(&ds.force, r, knee, share, sc, ctx.force_deadband);
                     let mut p = Vec::with_capacity(len);
                     load_series(f, &dt, cfg, ctx.creep_tau_max, every, &mut p);
                     return p;
@@ -969,7 +970,7 @@ mod tests {
         // state stays at its saturation, and the load is F + share z.
         let mut f: Vec<f64> = (0..=50).map(|i| i as f64 * 0.1).collect();
         f.extend((0..500).map(|i| 5.0 + if i % 2 == 0 { 0.02 } else { -0.02 }));
-        let out: Vec<f64> = bouc_wen_load(&f, [0.5, 2.0], 0.4, 1.0, 0.06).collect();
+        let out: Vec<f64> = bouc_wen_load(&f, 0.5, &Knee::new(2.0), 0.4, 1.0, 0.06).collect();
         let last = f.len() - 1;
         assert!(
             (out[last] - f[last] - 0.4 * 0.5).abs() < 1e-3,
@@ -977,7 +978,7 @@ mod tests {
             out[last] - f[last]
         );
         // Without the deadband the noise walks the state down.
-        let raw: Vec<f64> = bouc_wen_load(&f, [0.5, 1.0], 0.4, 1.0, 0.0).collect();
+        let raw: Vec<f64> = bouc_wen_load(&f, 0.5, &Knee::new(1.0), 0.4, 1.0, 0.0).collect();
         assert!(raw[last] - f[last] < 0.4 * 0.25, "{}", raw[last] - f[last]);
     }
 }

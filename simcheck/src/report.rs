@@ -136,14 +136,13 @@ pub fn extended_model(
         amplitudes: terms.iter().map(|t| t.0.clamp(-0.99, 0.99)).collect(),
         tau_s: terms.iter().map(|t| t.1).collect(),
     });
-    let deadband = crate::model::Context::new(ds).force_deadband;
     m.hysteresis = cfg.hysteresis.map(|r| match cfg.hyst_share {
         Some(share) if cfg.hyst_bouc_wen => Hysteresis {
             weight: share.clamp(-1.0, 1.0),
             thresholds_n: Vec::new(),
             bouc_wen_saturation_n: Some(r),
             bouc_wen_exponent: cfg.hyst_bw_n,
-            input_deadband_n: deadband,
+            input_deadband_n: crate::model::force_deadband(&ds.force),
         },
         Some(share) => {
             let (weight, thresholds_n) = crate::diagnose::in_load_as_sim(r, cfg.hyst_mix, share);
@@ -160,7 +159,7 @@ pub fn extended_model(
         },
     });
     if cfg.hyst_bouc_wen {
-        notes.push(format!("hysteresis: the tool fits a Bouc-Wen state in the load path, F + share z per node, z saturating at r = {r:.3} N of the most loaded node's load with exponent n = {n:.2}, driven by the node's own load (nodes.load_share, estimated from its signal); its input is the recorded force through a play of half-width {deadband:.3} N (three standard deviations of the load cell's noise), since a state without return-point memory would ratchet on that noise. SIM.toml gets the same form (bouc_wen_saturation_n, bouc_wen_exponent, input_deadband_n, weight = share)", r = cfg.hysteresis.unwrap_or(0.0), n = cfg.hyst_bw_n));
+        notes.push(format!("hysteresis: the tool fits a Bouc-Wen state in the load path, F + share z per node, z saturating at r = {r:.3} N of the most loaded node's load with exponent n = {n:.2}, driven by the node's own load (nodes.load_share, estimated from its signal); its input is the recorded force through a play of half-width {deadband:.3} N (three standard deviations of the load cell's noise), since a state without return-point memory would ratchet on that noise. SIM.toml gets the same form (bouc_wen_saturation_n, bouc_wen_exponent, input_deadband_n, weight = share)", r = cfg.hysteresis.unwrap_or(0.0), n = cfg.hyst_bw_n, deadband = crate::model::force_deadband(&ds.force)));
     } else if cfg.hyst_share.is_some() {
         notes.push(format!("hysteresis: the tool fits the load path F + share (gap_r + mix gap_4r) per node, with each node's half-widths scaled to its share of the load (nodes.load_share, estimated from its signal); SIM.toml gets the simulator's equal-weight form: half-widths r and 4r (in newtons of the most loaded node's load) repeated in the ratio closest to mix = {:.2}, and weight = share x (number of operators) / (number at r)", cfg.hyst_mix));
     } else if cfg.hysteresis.is_some() {
