@@ -1,57 +1,101 @@
-//! No-load baseline detection. Frames are grouped into consecutive windows of `window_frames`;
-//! a window is "no load" when every node is steady (standard deviation at most `max_node_sd`)
-//! and, once a baseline is known, no node's mean has moved more than `contact_threshold` from it
-//! (so a steady press is not mistaken for a new baseline, in either direction of the reading,
-//! while slow drift is followed). The first steady window gives the first baseline. A steady
-//! level that differs from the baseline by more than `contact_threshold` but less than
-//! `max_rebaseline_shift` on every node, and stays for `rebaseline_s`, becomes the new baseline:
-//! the sensor was remounted (a held press moves the loaded nodes much further, and a human hand's
-//! tremor keeps it from being steady).
+//! No-load baseline detection with every threshold in units of a noise level measured from the
+//! stream itself, so the same defaults work for a 10-bit board with 0.3 counts of noise, a
+//! 12-bit divider with 5 counts, and a board that logs ohms.
+//!
+//! Frames are grouped into consecutive windows of `window_frames`. For each node and window the
+//! detector measures, robustly (so rare spikes do not count):
+//! - the *level*: a trimmed mean (the 10 % highest and lowest values dropped);
+//! - the *spread*: 1.4826 x the median absolute deviation of the values;
+//! - the *noise*: the frame-to-frame noise from first differences (a trimmed mean of their
+//!   absolute values, scaled to a standard deviation), floored at half the reading's resolution
+//!   (the smallest step seen);
+//! - the *reference noise*: the lower quartile of the noise of the last 64 windows, i.e. of the
+//!   quietest windows seen so far (from the first window on, its own noise).
+//!
+//! A window is *steady* when every node's spread is at most `steady_ratio` x its noise (white
+//! noise gives about 1; a ramp, a hand's tremor or a drift within the window give more) and its
+//! noise at most `noise_ratio` x the reference noise (vibration under load). A steady window is
+//! *no load* when no node's level is more than `contact_sigmas` reference noises from the
+//! baseline in use (slow drift and wander are followed window by window). The first steady window
+//! gives the first baseline (the stream must start unloaded, as the paper's protocol does). A
+//! steady level away from the baseline by less than `max_rebaseline_sigmas` on every node that
+//! stays for `rebaseline_s` becomes the new baseline: the sensor was remounted (a held press
+//! moves the loaded nodes much further, and a hand's tremor keeps it from being steady).
+//!
+//! Readings of a resistance (ohm) are judged in the log domain, where their noise is even. The
+//! published baseline is the level in the stream's own units.
 
-/// Detector settings (readings in the units of the stream, ADC counts by default).
+/// Windows whose noise is remembered for the reference noise.
+const NOISE_HISTORY: usize = 64;
+/// Share of values dropped at each end for the trimmed level.
+const TRIM: f64 = 0.1;
+
+/// Detector settings; thresholds are in units of the stream's own noise.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DetectorConfig {
     /// Frames per window (the paper averages 100 no-load samples).
     pub window_frames: usize,
-    /// Largest per-node standard deviation in a no-load window.
-    pub max_node_sd: f64,
-    /// Largest per-node move of the window mean from the current baseline.
-    pub contact_threshold: f64,
+    /// Steady: each node's spread within the window at most this many times its noise.
+    pub steady_ratio: f64,
+    /// Steady: each node's noise at most this many times the quietest noise seen.
+    pub noise_ratio: f64,
+    /// No load: each node's level within this many reference noises of the baseline.
+    pub contact_sigmas: f64,
     /// Least time between two published baselines (s).
     pub min_interval_s: f64,
     /// How long a new steady level must last to replace the baseline (s).
     pub rebaseline_s: f64,
-    /// Largest per-node move from the baseline that can still be a remount.
-    pub max_rebaseline_shift: f64,
+    /// Largest per-node move from the baseline that can still be a remount (reference noises).
+    pub max_rebaseline_sigmas: f64,
+    /// Judge the readings in the log domain (a resistance readout).
+    pub log_domain: bool,
+    /// Fixed overrides, for those who want them: the largest spread of a steady node, and the
+    /// largest level move still counted as no load, in the judging domain's units (reading
+    /// units; natural-log units for a resistance). None: adaptive.
+    pub max_node_sd: Option<f64>,
+    pub contact_threshold: Option<f64>,
 }
 
 impl Default for DetectorConfig {
     fn default() -> Self {
         DetectorConfig {
             window_frames: 100,
-            max_node_sd: 1.5,
-            contact_threshold: 4.0,
+            steady_ratio: 2.0,
+            noise_ratio: 3.0,
+            contact_sigmas: 8.0,
             min_interval_s: 1.0,
             rebaseline_s: 5.0,
-            max_rebaseline_shift: 25.0,
+            max_rebaseline_sigmas: 60.0,
+            log_domain: false,
+            max_node_sd: None,
+            contact_threshold: None,
         }
     }
 }
 
 impl DetectorConfig {
     pub fn validate(&self) -> Result<(), String> {
-        if self.window_frames < 2 || self.window_frames > 1_000_000 {
+        if self.window_frames < 4 || self.window_frames > 1_000_000 {
             return Err(format!(
-                "window_frames must be 2..=1000000, got {}",
+                "window_frames must be 4..=1000000, got {}",
                 self.window_frames
             ));
         }
         for (v, name) in [
-            (self.max_node_sd, "max_node_sd"),
-            (self.contact_threshold, "contact_threshold"),
+            (self.steady_ratio, "steady_ratio"),
+            (self.noise_ratio, "noise_ratio"),
+            (self.contact_sigmas, "contact_sigmas"),
+            (self.max_rebaseline_sigmas, "max_rebaseline_sigmas"),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{name} must be a finite number > 0, got {v}"));
+            }
+        }
+        for (v, name) in [
             (self.min_interval_s, "min_interval_s"),
             (self.rebaseline_s, "rebaseline_s"),
-            (self.max_rebaseline_shift, "max_rebaseline_shift"),
+            (self.max_node_sd.unwrap_or(0.0), "max_node_sd"),
+            (self.contact_threshold.unwrap_or(0.0), "contact_threshold"),
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{name} must be a finite number >= 0, got {v}"));
@@ -64,8 +108,11 @@ impl DetectorConfig {
 /// A detected no-load window.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Baseline {
-    /// Mean reading per node.
+    /// Level per node (trimmed mean, in the stream's units).
     pub mean: Vec<f64>,
+    /// Reference noise per node (one standard deviation, in the judging domain: reading units,
+    /// or natural-log units for a resistance).
+    pub noise: Vec<f64>,
     pub first_seq: u64,
     pub last_seq: u64,
     pub t_start_ns: u64,
@@ -75,19 +122,83 @@ pub struct Baseline {
     pub remount: bool,
 }
 
-/// Streaming detector; no allocation per frame (buffers are sized once per geometry).
+/// Statistics of one node over one window (judging domain).
+#[derive(Debug, Clone, Copy, Default)]
+struct NodeStats {
+    level: f64,
+    spread: f64,
+    noise: f64,
+    /// Smallest non-zero step between consecutive values (0 if none).
+    quantum: f64,
+}
+
+/// Expected value of |Z| over the lower 90 % of a standard half-normal: turns the trimmed mean
+/// of |differences| into a standard deviation.
+const TRIMMED_ABS_NORMAL: f64 = 0.6574;
+
+/// Statistics of `values` (one node's window, judging domain); `scratch` is reused.
+fn node_stats(values: &[f64], scratch: &mut Vec<f64>) -> NodeStats {
+    let w = values.len();
+    scratch.clear();
+    scratch.extend_from_slice(values);
+    scratch.sort_by(f64::total_cmp);
+    let cut = ((w as f64 * TRIM).floor() as usize).min((w - 1) / 2);
+    let kept = &scratch[cut..w - cut];
+    let level = kept.iter().sum::<f64>() / kept.len() as f64;
+    let median = scratch[w / 2];
+    for v in scratch.iter_mut() {
+        *v = (*v - median).abs();
+    }
+    scratch.sort_by(f64::total_cmp);
+    let spread = 1.4826 * scratch[w / 2];
+    scratch.clear();
+    let mut quantum = f64::INFINITY;
+    for p in values.windows(2) {
+        let d = (p[1] - p[0]).abs();
+        if d > 0.0 {
+            quantum = quantum.min(d);
+        }
+        scratch.push(d);
+    }
+    scratch.sort_by(f64::total_cmp);
+    let keep = ((scratch.len() as f64 * 0.9).ceil() as usize).clamp(1, scratch.len());
+    let mean_abs = scratch[..keep].iter().sum::<f64>() / keep as f64;
+    NodeStats {
+        level,
+        spread,
+        noise: mean_abs / (std::f64::consts::SQRT_2 * TRIMMED_ABS_NORMAL),
+        quantum: if quantum.is_finite() { quantum } else { 0.0 },
+    }
+}
+
+/// Streaming detector; no allocation per frame or window (buffers are sized once per geometry).
 #[derive(Debug, Clone)]
 pub struct BaselineDetector {
     cfg: DetectorConfig,
     n: usize,
-    sum: Vec<f64>,
-    sumsq: Vec<f64>,
+    /// Window values, node-major (`k * window_frames + i`), judging domain.
+    buf: Vec<f64>,
+    /// Window values in the stream's units, node-major (for the published level).
+    raw: Vec<f64>,
     count: usize,
     first_seq: u64,
     last_seq: Option<u64>,
     t_start_ns: u64,
-    /// The baseline in use (valid when `has_current`).
+    stats: Vec<NodeStats>,
+    /// Noise of the last windows, node-major ring (`k * NOISE_HISTORY + j`).
+    history: Vec<f64>,
+    history_len: usize,
+    history_next: usize,
+    /// Smallest non-zero step seen per node over the whole stream.
+    quantum: Vec<f64>,
+    /// Reference noise per node (judging domain).
+    sigma: Vec<f64>,
+    scratch: Vec<f64>,
+    /// Each node's level shift from the baseline in use, for the window just judged.
+    shift: Vec<f64>,
+    /// The baseline in use, judging domain and stream units (valid when `has_current`).
     current: Vec<f64>,
+    current_raw: Vec<f64>,
     has_current: bool,
     last_emit_ns: Option<u64>,
     /// A steady level away from the baseline and since when (valid when `candidate_since`).
@@ -102,19 +213,29 @@ impl BaselineDetector {
         BaselineDetector {
             cfg,
             n: 0,
-            sum: Vec::new(),
-            sumsq: Vec::new(),
+            buf: Vec::new(),
+            raw: Vec::new(),
             count: 0,
             first_seq: 0,
             last_seq: None,
             t_start_ns: 0,
+            stats: Vec::new(),
+            history: Vec::new(),
+            history_len: 0,
+            history_next: 0,
+            quantum: Vec::new(),
+            sigma: Vec::new(),
+            scratch: Vec::new(),
+            shift: Vec::new(),
             current: Vec::new(),
+            current_raw: Vec::new(),
             has_current: false,
             last_emit_ns: None,
             candidate: Vec::new(),
             candidate_since: None,
             out: Baseline {
                 mean: Vec::new(),
+                noise: Vec::new(),
                 first_seq: 0,
                 last_seq: 0,
                 t_start_ns: 0,
@@ -125,15 +246,45 @@ impl BaselineDetector {
         }
     }
 
-    /// The baseline in use, if any.
+    /// The baseline in use, if any (stream units).
     pub fn current(&self) -> Option<&[f64]> {
-        self.has_current.then_some(&self.current[..])
+        self.has_current.then_some(&self.current_raw[..])
     }
 
-    fn restart(&mut self) {
+    /// The reference noise per node (judging domain), once a window has completed.
+    pub fn noise(&self) -> Option<&[f64]> {
+        (self.history_len > 0).then_some(&self.sigma[..])
+    }
+
+    fn resize(&mut self, n: usize) {
+        let w = self.cfg.window_frames;
+        self.n = n;
+        self.buf = vec![0.0; n * w];
+        self.raw = vec![0.0; n * w];
+        self.stats = vec![NodeStats::default(); n];
+        self.history = vec![0.0; n * NOISE_HISTORY];
+        self.history_len = 0;
+        self.history_next = 0;
+        self.quantum = vec![f64::INFINITY; n];
+        self.sigma = vec![0.0; n];
+        self.scratch = Vec::with_capacity(w.max(NOISE_HISTORY));
+        self.shift = vec![0.0; n];
+        self.current = vec![0.0; n];
+        self.current_raw = vec![0.0; n];
+        self.candidate = vec![0.0; n];
+        self.out.mean = vec![0.0; n];
+        self.out.noise = vec![0.0; n];
+        self.has_current = false;
+        self.candidate_since = None;
         self.count = 0;
-        self.sum.iter_mut().for_each(|v| *v = 0.0);
-        self.sumsq.iter_mut().for_each(|v| *v = 0.0);
+    }
+
+    fn domain(&self, v: f64) -> f64 {
+        if self.cfg.log_domain {
+            v.max(1e-9).ln()
+        } else {
+            v
+        }
     }
 
     /// Feeds one frame; returns a baseline when a window completes as no-load (and the minimum
@@ -141,68 +292,64 @@ impl BaselineDetector {
     pub fn push(&mut self, seq: u64, t_ns: u64, nodes: &[f32]) -> Option<&Baseline> {
         if nodes.len() != self.n {
             // New geometry: start from scratch.
-            self.n = nodes.len();
-            self.sum = vec![0.0; self.n];
-            self.sumsq = vec![0.0; self.n];
-            self.current = vec![0.0; self.n];
-            self.candidate = vec![0.0; self.n];
-            self.out.mean = vec![0.0; self.n];
-            self.has_current = false;
-            self.candidate_since = None;
-            self.count = 0;
+            self.resize(nodes.len());
         }
         if self.last_seq.is_some_and(|l| seq != l + 1) {
-            self.restart();
+            self.count = 0;
         }
         self.last_seq = Some(seq);
         if self.count == 0 {
             self.first_seq = seq;
             self.t_start_ns = t_ns;
         }
-        for ((s, q), &v) in self.sum.iter_mut().zip(self.sumsq.iter_mut()).zip(nodes) {
+        let w = self.cfg.window_frames;
+        for (k, &v) in nodes.iter().enumerate() {
             let v = v as f64;
-            *s += v;
-            *q += v * v;
+            self.raw[k * w + self.count] = v;
+            self.buf[k * w + self.count] = self.domain(v);
         }
         self.count += 1;
-        if self.count < self.cfg.window_frames {
+        if self.count < w {
             return None;
         }
-        let m = self.count as f64;
-        let mut steady = true;
-        let mut shift: f64 = 0.0;
-        for k in 0..self.n {
-            let mu = self.sum[k] / m;
-            let var = (self.sumsq[k] / m - mu * mu).max(0.0);
-            if var.sqrt() > self.cfg.max_node_sd {
-                steady = false;
-            }
-            if self.has_current {
-                shift = shift.max((mu - self.current[k]).abs());
-            }
-            self.out.mean[k] = mu;
-        }
         let frames = self.count;
-        self.restart();
-        if !steady {
+        self.count = 0;
+        self.measure();
+        if !self.judge() {
             self.candidate_since = None;
             return None;
         }
-        let remount = shift > self.cfg.contact_threshold;
+        let limit = |sigma: f64, sigmas: f64, fixed: Option<f64>| fixed.unwrap_or(sigma * sigmas);
+        let remount = self.has_current
+            && (0..self.n).any(|k| {
+                self.shift[k]
+                    > limit(
+                        self.sigma[k],
+                        self.cfg.contact_sigmas,
+                        self.cfg.contact_threshold,
+                    )
+            });
         if remount {
             // Steady but away from the baseline: a held press, or a remount.
-            if shift > self.cfg.max_rebaseline_shift {
+            let too_far =
+                (0..self.n).any(|k| self.shift[k] > self.sigma[k] * self.cfg.max_rebaseline_sigmas);
+            if too_far {
                 self.candidate_since = None;
                 return None;
             }
             let same = self.candidate_since.is_some()
-                && self
-                    .candidate
-                    .iter()
-                    .zip(&self.out.mean)
-                    .all(|(a, b)| (a - b).abs() <= self.cfg.contact_threshold);
+                && (0..self.n).all(|k| {
+                    (self.candidate[k] - self.stats[k].level).abs()
+                        <= limit(
+                            self.sigma[k],
+                            self.cfg.contact_sigmas,
+                            self.cfg.contact_threshold,
+                        )
+                });
             if !same {
-                self.candidate.copy_from_slice(&self.out.mean);
+                for k in 0..self.n {
+                    self.candidate[k] = self.stats[k].level;
+                }
                 self.candidate_since = Some(self.t_start_ns);
                 return None;
             }
@@ -214,15 +361,19 @@ impl BaselineDetector {
             self.last_emit_ns = None;
         }
         self.candidate_since = None;
+        for k in 0..self.n {
+            self.current[k] = self.stats[k].level;
+            self.current_raw[k] = self.out.mean[k];
+        }
+        self.has_current = true;
         let due = self
             .last_emit_ns
             .is_none_or(|t| t_ns.saturating_sub(t) as f64 >= self.cfg.min_interval_s * 1e9);
-        self.current.copy_from_slice(&self.out.mean);
-        self.has_current = true;
         if !due {
             return None;
         }
         self.last_emit_ns = Some(t_ns);
+        self.out.noise.copy_from_slice(&self.sigma);
         self.out.first_seq = self.first_seq;
         self.out.last_seq = seq;
         self.out.t_start_ns = self.t_start_ns;
@@ -231,112 +382,74 @@ impl BaselineDetector {
         self.out.remount = remount;
         Some(&self.out)
     }
+
+    /// Measures the completed window: per-node statistics, the published levels, the noise
+    /// history and the reference noise.
+    fn measure(&mut self) {
+        let w = self.cfg.window_frames;
+        let slot = self.history_next;
+        for k in 0..self.n {
+            let s = node_stats(&self.buf[k * w..(k + 1) * w], &mut self.scratch);
+            if s.quantum > 0.0 {
+                self.quantum[k] = self.quantum[k].min(s.quantum);
+            }
+            self.stats[k] = s;
+            self.history[k * NOISE_HISTORY + slot] = s.noise;
+            // The published level: the same trimmed mean, in the stream's units.
+            let raw = &self.raw[k * w..(k + 1) * w];
+            self.out.mean[k] = if self.cfg.log_domain {
+                node_stats(raw, &mut self.scratch).level
+            } else {
+                s.level
+            };
+        }
+        self.history_next = (slot + 1) % NOISE_HISTORY;
+        self.history_len = (self.history_len + 1).min(NOISE_HISTORY);
+        for k in 0..self.n {
+            self.scratch.clear();
+            self.scratch.extend_from_slice(
+                &self.history[k * NOISE_HISTORY..k * NOISE_HISTORY + self.history_len],
+            );
+            self.scratch.sort_by(f64::total_cmp);
+            let quiet = self.scratch[(self.history_len - 1) / 4];
+            self.sigma[k] = quiet.max(self.floor(k));
+        }
+    }
+
+    /// The least noise a node can be said to have: half its resolution, or a tiny share of its
+    /// level when it never moved.
+    fn floor(&self, k: usize) -> f64 {
+        let q = self.quantum[k];
+        if q.is_finite() {
+            0.5 * q
+        } else {
+            1e-6 * (1.0 + self.stats[k].level.abs())
+        }
+    }
+
+    /// Whether the window is steady; fills each node's level shift from the baseline in use.
+    fn judge(&mut self) -> bool {
+        let mut steady = true;
+        for k in 0..self.n {
+            let s = self.stats[k];
+            let noise = s.noise.max(self.floor(k));
+            let spread_ok = match self.cfg.max_node_sd {
+                Some(max) => s.spread <= max,
+                None => {
+                    s.spread <= self.cfg.steady_ratio * noise
+                        && noise <= self.cfg.noise_ratio * self.sigma[k]
+                }
+            };
+            steady &= spread_ok;
+            self.shift[k] = if self.has_current {
+                (s.level - self.current[k]).abs()
+            } else {
+                0.0
+            };
+        }
+        steady
+    }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn cfg() -> DetectorConfig {
-        DetectorConfig {
-            window_frames: 10,
-            min_interval_s: 0.0,
-            ..DetectorConfig::default()
-        }
-    }
-
-    #[test]
-    fn steady_windows_give_baselines_and_presses_do_not() {
-        let mut d = BaselineDetector::new(cfg());
-        let mut seq = 0;
-        let mut feed = |d: &mut BaselineDetector, level: f32, n: usize| {
-            let mut out = Vec::new();
-            for i in 0..n {
-                let wobble = if i % 2 == 0 { 0.5 } else { -0.5 };
-                if let Some(b) = d.push(seq, seq * 1_000_000, &[level + wobble, 100.0]) {
-                    out.push(b.clone());
-                }
-                seq += 1;
-            }
-            out
-        };
-        let first = feed(&mut d, 110.0, 10);
-        assert_eq!(first.len(), 1);
-        assert!((first[0].mean[0] - 110.0).abs() < 1e-9);
-        // A steady press far above the baseline is not a baseline.
-        assert!(feed(&mut d, 300.0, 30).is_empty());
-        // A ramp is not steady.
-        let mut ramp = Vec::new();
-        for i in 0..10 {
-            ramp.extend(feed(&mut d, 110.0 + i as f32 * 2.0, 1));
-        }
-        assert!(ramp.is_empty());
-        // Slow drift within the threshold is followed.
-        let drift = feed(&mut d, 112.0, 10);
-        assert_eq!(drift.len(), 1);
-        assert!((drift[0].mean[0] - 112.0).abs() < 1e-9);
-    }
-
-    #[test]
-    fn gaps_restart_the_window() {
-        let mut d = BaselineDetector::new(cfg());
-        for s in 0..5 {
-            assert!(d.push(s, s, &[1.0]).is_none());
-        }
-        // seq jumps: the partial window is discarded.
-        for s in 10..19 {
-            assert!(d.push(s, s, &[1.0]).is_none());
-        }
-        assert!(d.push(19, 19, &[1.0]).is_some());
-    }
-
-    #[test]
-    fn a_remount_becomes_the_new_baseline_after_a_while_but_a_press_never_does() {
-        let mut d = BaselineDetector::new(DetectorConfig {
-            window_frames: 10,
-            min_interval_s: 0.0,
-            rebaseline_s: 1.0,
-            ..DetectorConfig::default()
-        });
-        let ms = 1_000_000u64;
-        let mut seq = 0u64;
-        let mut feed = |d: &mut BaselineDetector, levels: [f32; 2], frames: usize| {
-            let mut got = Vec::new();
-            for _ in 0..frames {
-                if let Some(b) = d.push(seq, seq * 10 * ms, &levels) {
-                    got.push(b.clone());
-                }
-                seq += 1;
-            }
-            got
-        };
-        assert_eq!(feed(&mut d, [100.0, 100.0], 10).len(), 1);
-        // Remounted: every node 8 counts higher, steady. Not before 1 s, then yes.
-        assert!(feed(&mut d, [108.0, 108.0], 90).is_empty());
-        let new = feed(&mut d, [108.0, 108.0], 30);
-        assert!(!new.is_empty(), "remount accepted after rebaseline_s");
-        assert!(new[0].remount);
-        assert!((new[0].mean[0] - 108.0).abs() < 1e-9);
-        // A steady press 200 counts up on one node is never a baseline.
-        assert!(feed(&mut d, [308.0, 108.0], 500).is_empty());
-        assert!((d.current().map_or(0.0, |c| c[0]) - 108.0).abs() < 1e-9);
-    }
-
-    #[test]
-    fn min_interval_limits_publishing() {
-        let mut d = BaselineDetector::new(DetectorConfig {
-            window_frames: 10,
-            min_interval_s: 1.0,
-            ..DetectorConfig::default()
-        });
-        let mut emitted = 0;
-        for s in 0..1000u64 {
-            // 1 ms per frame: the first window ends at 9 ms, the next allowed one at >= 1009 ms.
-            if d.push(s, s * 1_000_000, &[5.0]).is_some() {
-                emitted += 1;
-            }
-        }
-        assert_eq!(emitted, 1);
-        assert!(d.current().is_some());
-    }
-}
+mod tests;

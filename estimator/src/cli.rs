@@ -109,12 +109,22 @@ pub struct RunArgs {
     /// Frames per no-load window.
     #[arg(long, default_value_t = DetectorConfig::default().window_frames)]
     pub window_frames: usize,
-    /// Largest per-node standard deviation in a no-load window (reading units).
-    #[arg(long, default_value_t = DetectorConfig::default().max_node_sd)]
-    pub max_node_sd: f64,
-    /// Largest per-node move from the current baseline still counted as no load.
-    #[arg(long, default_value_t = DetectorConfig::default().contact_threshold)]
-    pub contact_threshold: f64,
+    /// A window is steady when each node's spread is at most this many times its own
+    /// frame-to-frame noise.
+    #[arg(long, default_value_t = DetectorConfig::default().steady_ratio)]
+    pub steady_ratio: f64,
+    /// A no-load window's level is within this many noise levels (measured from the stream) of
+    /// the baseline.
+    #[arg(long, default_value_t = DetectorConfig::default().contact_sigmas)]
+    pub contact_sigmas: f64,
+    /// Fixed override: largest per-node standard deviation of a steady window (reading units;
+    /// default: adaptive, from the stream's noise).
+    #[arg(long)]
+    pub max_node_sd: Option<f64>,
+    /// Fixed override: largest per-node move from the baseline still counted as no load
+    /// (reading units; default: adaptive).
+    #[arg(long)]
+    pub contact_threshold: Option<f64>,
     /// Least time between published baselines (s).
     #[arg(long, default_value_t = DetectorConfig::default().min_interval_s)]
     pub min_interval_s: f64,
@@ -149,6 +159,8 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
     }
     let detector = DetectorConfig {
         window_frames: a.window_frames,
+        steady_ratio: a.steady_ratio,
+        contact_sigmas: a.contact_sigmas,
         max_node_sd: a.max_node_sd,
         contact_threshold: a.contact_threshold,
         min_interval_s: a.min_interval_s,

@@ -1,14 +1,17 @@
 //! taxel-formats owns every file format taxel reads or writes: the recording CSV schema that all
 //! offline tools share (`csv`), the logger's crash-tolerant record file (`records`), its MCAP export and import for Foxglove (`mcap`), and the one
 //! bincode envelope (magic + format version, trailing bytes rejected) that model files use
-//! (`envelope`). Readers never panic on bad input: errors name the file and the line or byte
+//! (`envelope`), and what a board's reading is (`readout`: amplifier, divider, resistance, inverted,
+//! and the signal rising with conductance that calibrations and curvature models work on). Readers never panic on bad input: errors name the file and the line or byte
 //! offset. Documented in docs/formats.md.
 
 pub mod crc;
 pub mod csv;
 pub mod envelope;
 pub mod mcap;
+pub mod readout;
 pub mod records;
 
 pub use csv::{Geometry, Recording, RecordingWriter};
+pub use readout::{Readout, ReadoutKind};
 pub use records::{Record, RecordFileReader, RecordFileWriter};
