@@ -1,15 +1,21 @@
 //! The calibration file (TOML, hand-editable) and the model it describes.
 //!
-//! The reading `S` of a block is the sum over the block's nodes of `raw - baseline`, in ADC
-//! counts, where `baseline` is the per-node no-load baseline carried by the latest
-//! `CurvatureEstimate`. Each block maps `(S, C)` (C: curvature, 1/m) to force (N) with its own
-//! model, valid on a declared range; a file is refused unless every model is finite and
-//! strictly increasing in `S` over its whole declared range. See docs/formats.md.
+//! The reading `S` of a block is the sum over the block's nodes of
+//! `signal(raw) - signal(baseline)`, where `signal` turns the board's reading into a quantity
+//! that rises with the crossing's conductance (the file's `readout`: the identity for the
+//! paper's amplifier, so `S` is then in ADC counts) and `baseline` is the per-node no-load
+//! baseline carried by the latest `CurvatureEstimate` (or, until one arrives, the file's
+//! `no_load_reading`). Each block maps `(S, C)` (C: curvature, 1/m) to force (N) with its own
+//! model (`forms`), valid on a declared range; a file is refused unless every model is finite
+//! and strictly increasing in `S` over its whole declared range. See docs/formats.md.
 
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
+use taxel_formats::Readout;
 use taxel_msgs::MAX_BLOCKS;
+
+pub use crate::forms::{validate_model, Model, ModelSpec, Term};
 
 /// Why a calibration file was refused.
 #[derive(Debug, thiserror::Error)]
@@ -20,89 +26,6 @@ pub enum CalibrationError {
     Parse { path: String, message: String },
     #[error("{path}: {message}")]
     Invalid { path: String, message: String },
-}
-
-/// One monomial `coef * S^s * C^c` of a polynomial model.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Term {
-    /// Power of the reading S.
-    pub s: u32,
-    /// Power of the curvature C.
-    pub c: u32,
-    /// Coefficient (N per count^s per (1/m)^c).
-    pub coef: f64,
-}
-
-/// The model of one block.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "form", deny_unknown_fields)]
-pub enum ModelSpec {
-    /// `F = sum coef S^s C^c` (the paper's form: total degree <= 3).
-    #[serde(rename = "poly")]
-    Poly { terms: Vec<Term> },
-    /// Physics-derived: curvature scales the sensitivity, so the reading is first brought back
-    /// to its flat equivalent `x = S (1 + g1 C + g2 C^2)`, then the inverse static law
-    /// `F = h(x)` is a strictly increasing piecewise-linear curve through the knots `(x, f)`
-    /// (extended with its end slopes), monotone in S by construction.
-    #[serde(rename = "physics")]
-    Physics {
-        /// `[g1 (m), g2 (m^2)]`.
-        curvature_gain: [f64; 2],
-        /// Knot positions in flat-equivalent counts, strictly increasing.
-        x: Vec<f64>,
-        /// Force at each knot (N), strictly increasing.
-        f: Vec<f64>,
-    },
-}
-
-/// A validated model.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Model {
-    Poly(Vec<Term>),
-    Physics {
-        gain: [f64; 2],
-        x: Vec<f64>,
-        f: Vec<f64>,
-    },
-}
-
-impl Model {
-    /// Force without range handling.
-    #[inline]
-    pub fn value(&self, s: f64, c: f64) -> f64 {
-        match self {
-            Model::Poly(terms) => terms
-                .iter()
-                .map(|t| t.coef * s.powi(t.s as i32) * c.powi(t.c as i32))
-                .sum(),
-            Model::Physics { gain, x, f } => {
-                let u = s * (1.0 + gain[0] * c + gain[1] * c * c);
-                let n = x.len();
-                let i = x.partition_point(|&k| k <= u).clamp(1, n - 1);
-                let (x0, x1, f0, f1) = (x[i - 1], x[i], f[i - 1], f[i]);
-                f0 + (f1 - f0) * (u - x0) / (x1 - x0)
-            }
-        }
-    }
-
-    /// dF/dS without range handling.
-    pub fn slope(&self, s: f64, c: f64) -> f64 {
-        match self {
-            Model::Poly(terms) => terms
-                .iter()
-                .filter(|t| t.s > 0)
-                .map(|t| t.coef * t.s as f64 * s.powi(t.s as i32 - 1) * c.powi(t.c as i32))
-                .sum(),
-            Model::Physics { gain, x, f } => {
-                let m = 1.0 + gain[0] * c + gain[1] * c * c;
-                let u = s * m;
-                let n = x.len();
-                let i = x.partition_point(|&k| k <= u).clamp(1, n - 1);
-                m * (f[i] - f[i - 1]) / (x[i] - x[i - 1])
-            }
-        }
-    }
 }
 
 /// Where a block's model may be used.
@@ -149,11 +72,30 @@ pub struct CalibrationFile {
     /// Curvature used until the first curvature estimate arrives (1/m).
     #[serde(default)]
     pub default_curvature_m1: f64,
+    /// What the board's readings are (default: the paper's 10-bit amplifier).
+    #[serde(default, skip_serializing_if = "is_paper_readout")]
+    pub readout: Readout,
+    /// The mean unloaded reading per node of the fit's data (at its lowest curvature), used
+    /// until the stream's own no-load baseline arrives (flagged `BASELINE_FROM_CALIBRATION`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub no_load_reading: Vec<f64>,
+    /// Force at that reading (N): non-zero when the fit's rig never fully unloaded (a preload);
+    /// added to every block's force.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub no_load_force_n: f64,
     /// Model of the whole array (its `nodes` must be omitted).
     pub array: BlockSpec,
     /// Calibration blocks (at most 8).
     #[serde(default, rename = "block")]
     pub blocks: Vec<BlockSpec>,
+}
+
+fn is_paper_readout(r: &Readout) -> bool {
+    *r == Readout::AMPLIFIER_10BIT
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// A validated block, ready to evaluate.
@@ -249,63 +191,12 @@ pub struct Calibration {
     pub rows: usize,
     pub cols: usize,
     pub default_curvature_m1: f64,
+    pub readout: Readout,
+    /// Per-node unloaded reading to use until the stream's baseline arrives (may be empty).
+    pub no_load_reading: Vec<f64>,
+    pub no_load_force_n: f64,
     pub array: Block,
     pub blocks: Vec<Block>,
-}
-
-/// Validates a model's parameters (not yet its monotonicity, which depends on the range).
-pub fn validate_model(name: &str, spec: &ModelSpec) -> Result<Model, String> {
-    match spec {
-        ModelSpec::Poly { terms } => {
-            if terms.is_empty() || !terms.iter().any(|t| t.s > 0) {
-                return Err(format!("block {name:?}: the model has no term in S"));
-            }
-            for t in terms {
-                if !t.coef.is_finite() {
-                    return Err(format!(
-                        "block {name:?}: coefficient of S^{} C^{} is not finite",
-                        t.s, t.c
-                    ));
-                }
-                if u64::from(t.s) + u64::from(t.c) > 6 {
-                    return Err(format!(
-                        "block {name:?}: term S^{} C^{} exceeds total degree 6",
-                        t.s, t.c
-                    ));
-                }
-            }
-            Ok(Model::Poly(terms.clone()))
-        }
-        ModelSpec::Physics {
-            curvature_gain,
-            x,
-            f,
-        } => {
-            if x.len() != f.len() || x.len() < 2 || x.len() > 256 {
-                return Err(format!(
-                    "block {name:?}: x and f need the same length, 2 to 256 knots"
-                ));
-            }
-            let finite = x
-                .iter()
-                .chain(f)
-                .chain(curvature_gain)
-                .all(|v| v.is_finite());
-            if !finite {
-                return Err(format!("block {name:?}: a knot or gain is not finite"));
-            }
-            if x.windows(2).any(|w| w[1] <= w[0]) || f.windows(2).any(|w| w[1] <= w[0]) {
-                return Err(format!(
-                    "block {name:?}: knots x and forces f must both be strictly increasing"
-                ));
-            }
-            Ok(Model::Physics {
-                gain: *curvature_gain,
-                x: x.clone(),
-                f: f.clone(),
-            })
-        }
-    }
 }
 
 fn validate_block(spec: &BlockSpec, n_nodes: usize, whole_array: bool) -> Result<Block, String> {
@@ -439,6 +330,24 @@ impl Calibration {
             )));
         }
         let n = f.rows * f.cols;
+        f.readout.validate().map_err(invalid)?;
+        if !f.no_load_reading.is_empty() && f.no_load_reading.len() != n {
+            return Err(invalid(format!(
+                "no_load_reading has {} entries for {n} nodes",
+                f.no_load_reading.len()
+            )));
+        }
+        if !f.no_load_reading.iter().all(|v| v.is_finite()) {
+            return Err(invalid(
+                "no_load_reading has a value that is not finite".into(),
+            ));
+        }
+        if !(f.no_load_force_n.is_finite() && f.no_load_force_n.abs() <= 1e6) {
+            return Err(invalid(format!(
+                "no_load_force_n must be a finite force, got {}",
+                f.no_load_force_n
+            )));
+        }
         let array = validate_block(&f.array, n, true).map_err(invalid)?;
         let mut blocks = Vec::with_capacity(f.blocks.len());
         for b in &f.blocks {
@@ -453,6 +362,9 @@ impl Calibration {
             rows: f.rows,
             cols: f.cols,
             default_curvature_m1: f.default_curvature_m1,
+            readout: f.readout,
+            no_load_reading: f.no_load_reading.clone(),
+            no_load_force_n: f.no_load_force_n,
             array,
             blocks,
         })

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
+use taxel_formats::readout::ReadoutChoice;
 use taxel_formats::Recording;
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
@@ -13,6 +14,7 @@ use taxel_runtime::Shutdown;
 use tracing::info;
 
 use crate::calibration::Calibration;
+use crate::evaluate::{Curvature, Headline, OVERALL_MIN_N};
 use crate::fit::{fit_calibration, FitOptions, Form};
 use crate::reload::load_for;
 
@@ -38,21 +40,36 @@ pub enum Cmd {
 
 #[derive(Debug, clap::Args)]
 pub struct EvalArgs {
-    /// Curvature model (from `taxel estimator train`).
+    /// Curvature model (from `taxel estimator train`): the curvature is predicted from the
+    /// recording's no-load start, as in the paper.
+    #[arg(
+        long,
+        conflicts_with = "curvature_m1",
+        required_unless_present = "curvature_m1"
+    )]
+    pub curvature_model: Option<PathBuf>,
+    /// The mounting's curvature (1/m), for a sensor without a curvature model or a known
+    /// mounting.
     #[arg(long)]
-    pub curvature_model: PathBuf,
-    /// Curvature-aware calibration.
+    pub curvature_m1: Option<f64>,
+    /// Curvature-aware calibration (or the only one, with --curvature-m1).
     #[arg(long)]
     pub calibration: PathBuf,
-    /// Flat calibration (fitted with --flat).
+    /// Flat calibration (fitted with --flat), scored beside it.
     #[arg(long)]
-    pub flat: PathBuf,
-    /// Recording of the object (.csv or .csv.gz) with force_n; it must start unloaded.
+    pub flat: Option<PathBuf>,
+    /// Recording of the object (.csv or .csv.gz) with force_n; with a curvature model it must
+    /// start unloaded.
     #[arg(long)]
     pub recording: PathBuf,
     /// Force levels (N).
     #[arg(long, value_delimiter = ',', default_value = "2,4,6,8")]
     pub levels: Vec<f64>,
+    /// Which force the headline (`levels`, `overall`) compares with the reference: the whole
+    /// array (the load on the whole sensor) or the central 2 x 2 block. Both are always in
+    /// `blocks`.
+    #[arg(long, value_enum, default_value_t = Headline::Array)]
+    pub headline: Headline,
     /// Print exactly one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
@@ -101,10 +118,24 @@ pub struct FitArgs {
     /// Fit a flat calibration from the curvature-0 data only.
     #[arg(long)]
     pub flat: bool,
-    /// Model form: the paper's polynomial, the physics-derived monotone form, or whichever has
-    /// the lower error on held-out trials.
+    /// Model form: the paper's polynomial, the physics-derived form, the shape-free monotone
+    /// form, or whichever has the lowest error on held-out trials.
     #[arg(long, value_enum, default_value_t = Form::Auto)]
     pub form: Form,
+    /// What the readings are: amplifier, divider, resistance, inverted, or auto (decided from
+    /// the data; one printed line says what and why).
+    #[arg(long, default_value_t = ReadoutChoice::default())]
+    pub readout: ReadoutChoice,
+    /// The ADC's full scale (default: the smallest 2^b - 1 at or above the largest reading).
+    #[arg(long)]
+    pub full_scale: Option<f64>,
+    /// Keep fixtures whose reading stops rising with force (left out by default).
+    #[arg(long)]
+    pub keep_non_monotone: bool,
+    /// Write a fit even when its held-out R^2 is below 0.5 or its forces span less than a
+    /// tenth of the reference range.
+    #[arg(long)]
+    pub accept_poor_fit: bool,
     /// Calibration id written into the file.
     #[arg(long, default_value = "fitted")]
     pub id: String,
@@ -183,14 +214,24 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
     for p in &a.data {
         recs.push(Recording::read(p).config_err()?);
     }
+    if let Some(fs) = a.full_scale {
+        if !(fs.is_finite() && (1.0..=1e9).contains(&fs)) {
+            return Err(Failure::config(anyhow::anyhow!(
+                "--full-scale must be 1..=1e9, got {fs}"
+            )));
+        }
+    }
     let opts = FitOptions {
         form: a.form,
-        flat: a.flat,
-        id: a.id.clone(),
         version: a.version,
         rows: a.rows,
         cols: a.cols,
         max_curvature_m1: a.max_curvature_m1,
+        readout: a.readout.0,
+        full_scale: a.full_scale,
+        keep_non_monotone: a.keep_non_monotone,
+        accept_poor_fit: a.accept_poor_fit,
+        ..FitOptions::new(&a.id, a.flat)
     };
     let (text, cal, report) = fit_calibration(&recs, &opts).config_err()?;
     for line in &report {
@@ -249,15 +290,50 @@ fn eval(a: EvalArgs) -> Result<(), Failure> {
             )));
         }
     }
-    let model = taxel_estimator::model::CurvatureModel::load(&a.curvature_model).config_err()?;
+    if let Some(c) = a.curvature_m1 {
+        if !(c.is_finite() && (0.0..=1000.0).contains(&c)) {
+            return Err(Failure::config(anyhow::anyhow!(
+                "--curvature-m1 must be 0..=1000 1/m, got {c}"
+            )));
+        }
+    }
+    let model = match &a.curvature_model {
+        Some(p) => Some(taxel_estimator::model::CurvatureModel::load(p).config_err()?),
+        None => None,
+    };
     let curve = Calibration::load(&a.calibration).config_err()?;
-    let flat = Calibration::load(&a.flat).config_err()?;
+    let flat = match &a.flat {
+        Some(p) => Some(Calibration::load(p).config_err()?),
+        None => None,
+    };
     let rec = Recording::read(&a.recording).config_err()?;
     let g = rec.geometry(a.rows, a.cols).config_err()?;
-    model
-        .check_nodes(&a.curvature_model.display().to_string(), rec.n_nodes)
-        .config_err()?;
-    let r = crate::evaluate::evaluate(&rec, g, &model, &curve, &flat, &a.levels).config_err()?;
+    let curvature = match (&model, a.curvature_m1) {
+        (Some(m), _) => {
+            let p = a
+                .curvature_model
+                .as_ref()
+                .map_or(String::new(), |p| p.display().to_string());
+            m.check_nodes(&p, rec.n_nodes).config_err()?;
+            Curvature::Model(m)
+        }
+        (None, Some(c)) => Curvature::Known(c),
+        (None, None) => {
+            return Err(Failure::config(anyhow::anyhow!(
+                "give --curvature-model (predict the curvature) or --curvature-m1 (a known one)"
+            )))
+        }
+    };
+    let r = crate::evaluate::evaluate_with(
+        &rec,
+        g,
+        curvature,
+        &curve,
+        flat.as_ref(),
+        &a.levels,
+        a.headline,
+    )
+    .config_err()?;
     if let Some(dir) = &a.plots {
         let name = a
             .recording
@@ -283,24 +359,64 @@ fn eval(a: EvalArgs) -> Result<(), Failure> {
         println!("{}", crate::evaluate::json(&r));
         return Ok(());
     }
-    println!(
-        "{}: curvature predicted {:.1} +- {:.1} 1/m from the first {} frames",
-        a.recording.display(),
-        r.curvature_pred_m1,
-        r.curvature_sd_m1,
-        r.estimate_at + 1
-    );
-    println!("| level (N) | frames | flat MAE +- SD (N) | curvature-aware MAE +- SD (N) |");
-    println!("|---:|---:|---:|---:|");
-    for l in &r.levels {
-        if l.n == 0 {
-            println!("| {} | 0 | no window | no window |", l.target_n);
-        } else {
-            println!(
-                "| {} | {} | {:.2} +- {:.2} | {:.2} +- {:.2} |",
-                l.target_n, l.n, l.flat_mae_n, l.flat_sd_n, l.curve_mae_n, l.curve_sd_n
-            );
-        }
-    }
+    print_eval(&a, &r);
     Ok(())
+}
+
+/// The human-readable report of `eval`.
+fn print_eval(a: &EvalArgs, r: &crate::evaluate::Report) {
+    if r.curvature_given {
+        println!(
+            "{}: curvature given, {:.1} 1/m; scored from frame {}",
+            a.recording.display(),
+            r.curvature_pred_m1,
+            r.estimate_at + 1
+        );
+    } else {
+        println!(
+            "{}: curvature predicted {:.1} +- {:.1} 1/m from the first {} frames",
+            a.recording.display(),
+            r.curvature_pred_m1,
+            r.curvature_sd_m1,
+            r.estimate_at + 1
+        );
+    }
+    for b in &r.blocks {
+        let head = if b.block == r.headline {
+            " (headline)"
+        } else {
+            ""
+        };
+        println!(
+            "\n{}{head}:",
+            if b.block == Headline::Array {
+                "whole array"
+            } else {
+                "central 2 x 2 block"
+            }
+        );
+        println!("| level (N) | frames | flat MAE +- SD (N) | curvature-aware MAE +- SD (N) |");
+        println!("|---:|---:|---:|---:|");
+        for l in &b.levels {
+            if l.n == 0 {
+                println!("| {} | 0 | no window | no window |", l.target_n);
+            } else if l.flat_mae_n.is_finite() {
+                println!(
+                    "| {} | {} | {:.2} +- {:.2} | {:.2} +- {:.2} |",
+                    l.target_n, l.n, l.flat_mae_n, l.flat_sd_n, l.curve_mae_n, l.curve_sd_n
+                );
+            } else {
+                println!(
+                    "| {} | {} | - | {:.2} +- {:.2} |",
+                    l.target_n, l.n, l.curve_mae_n, l.curve_sd_n
+                );
+            }
+        }
+        println!(
+            "every frame from {OVERALL_MIN_N} N: MAE {:.3} N, relative {:.1} % over {} frames",
+            b.overall.mae_n,
+            100.0 * b.overall.rel_mae,
+            b.overall.frames
+        );
+    }
 }

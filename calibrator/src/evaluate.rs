@@ -1,8 +1,21 @@
-//! The paper's evaluation protocol on one recording of an object whose curvature is not given:
-//! the curvature is predicted from the no-load period at the start (the live estimator's code),
-//! every later frame is calibrated with the flat and the curvature-aware calibration (the live
-//! calibrator's code), and for each force level the windows where the reference force stays
-//! within +-0.2 N of it for at least 1 s give the mean absolute error and its SD.
+//! The paper's evaluation protocol on one recording: every frame goes through the live
+//! estimator's code (no-load baseline detection, and the curvature from the model) and the live
+//! calibrator's code, and for each force level the windows where the reference force stays
+//! within +-0.2 N of it for at least 1 s give the mean absolute error and its SD, for the flat
+//! and the curvature-aware calibration.
+//!
+//! Two ways to get the curvature:
+//! - predicted (the paper's protocol): from the first no-load window, by a curvature model;
+//!   frames before that estimate are not scored;
+//! - given (`Curvature::Known`, a single-node sensor or a known mounting): the stream's
+//!   baseline still comes from the estimator's no-load detection, and until the first window
+//!   from the calibration's `no_load_reading` (when it has one); every frame with a force is
+//!   scored.
+//!
+//! Both the whole array and the central 2 x 2 block (the paper's indenter) are scored. The
+//! reference force is the load on the whole sensor, and a hand loads more than the central
+//! block, so the headline is the whole array unless asked otherwise. `overall` is the error over
+//! every scored frame whose reference force is at least 0.5 N, absolute and relative.
 
 use std::sync::Arc;
 
@@ -19,6 +32,35 @@ use crate::run::Calibrator;
 /// Tolerance around a level (N) and least window length (s), as in the paper.
 pub const LEVEL_TOLERANCE_N: f64 = 0.2;
 pub const LEVEL_MIN_S: f64 = 1.0;
+/// Least reference force of the frames in `overall` (N).
+pub const OVERALL_MIN_N: f64 = 0.5;
+
+/// Where the curvature comes from.
+#[derive(Debug, Clone, Copy)]
+pub enum Curvature<'m> {
+    /// Predicted from the first no-load window by this model.
+    Model(&'m CurvatureModel),
+    /// Given (1/m).
+    Known(f64),
+}
+
+/// Which block's force the headline compares with the reference.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Headline {
+    /// The whole array (the load on the whole sensor).
+    Array,
+    /// The central 2 x 2 block (the calibration's first block; the paper's indenter).
+    Center,
+}
+
+impl Headline {
+    pub fn name(self) -> &'static str {
+        match self {
+            Headline::Array => "array",
+            Headline::Center => "center",
+        }
+    }
+}
 
 /// Errors at one level.
 #[derive(Debug, Clone, PartialEq)]
@@ -32,16 +74,44 @@ pub struct LevelResult {
     pub curve_sd_n: f64,
 }
 
+/// Error over every scored frame with a reference of at least `OVERALL_MIN_N`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Overall {
+    pub mae_n: f64,
+    /// Mean of |error| / reference.
+    pub rel_mae: f64,
+    pub frames: usize,
+}
+
+/// The scores of one block.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BlockScores {
+    pub block: Headline,
+    pub levels: Vec<LevelResult>,
+    /// Curvature-aware (or the only) calibration.
+    pub overall: Overall,
+    /// The flat calibration, when there is one.
+    pub overall_flat: Option<Overall>,
+    /// Calibrated force per frame (curvature-aware, flat); NaN where not scored.
+    pub forces: Vec<(f32, f32)>,
+}
+
 /// The result for one recording.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Report {
     pub curvature_pred_m1: f64,
     pub curvature_sd_m1: f64,
-    /// Frame index at which the curvature estimate became available.
+    /// The curvature was given, not predicted.
+    pub curvature_given: bool,
+    /// Frame index from which frames are scored (the curvature estimate, or the first force).
     pub estimate_at: usize,
+    pub headline: Headline,
+    /// The headline block's levels and forces (copies of `blocks`' entry).
     pub levels: Vec<LevelResult>,
-    /// Calibrated force per frame (curvature-aware, flat); NaN before the estimate.
+    pub overall: Overall,
     pub forces: Vec<(f32, f32)>,
+    /// Every block scored: the whole array, then the central block.
+    pub blocks: Vec<BlockScores>,
 }
 
 /// Frames of `rec` as the publisher's replay source would send them.
@@ -97,92 +167,56 @@ fn mae_sd(errors: &[f64]) -> (f64, f64) {
     (mae, var.sqrt())
 }
 
-fn force_of(s: &ForceSample) -> f32 {
-    if s.n_blocks > 0 {
-        s.block_force_n[0]
-    } else {
-        s.total_force_n
+fn force_of(s: &ForceSample, block: Headline) -> f32 {
+    match block {
+        Headline::Center if s.n_blocks > 0 => s.block_force_n[0],
+        _ => s.total_force_n,
     }
 }
 
-/// Runs the protocol. The force compared is the calibration's first block (the paper's
-/// central block), or the whole array when the calibration has no block.
-pub fn evaluate(
+fn overall(force: &[f32], reference: &[f64]) -> Overall {
+    let (mut sum, mut rel, mut n) = (0.0, 0.0, 0usize);
+    for (f, r) in force.iter().zip(reference) {
+        if f.is_finite() && *r >= OVERALL_MIN_N {
+            let e = (*f as f64 - r).abs();
+            sum += e;
+            rel += e / r;
+            n += 1;
+        }
+    }
+    let d = n.max(1) as f64;
+    Overall {
+        mae_n: sum / d,
+        rel_mae: rel / d,
+        frames: n,
+    }
+}
+
+fn score(
     rec: &Recording,
-    g: Geometry,
-    model: &CurvatureModel,
-    curve: &Calibration,
-    flat: &Calibration,
+    reference: &[f64],
+    block: Headline,
+    forces: Vec<(f32, f32)>,
     levels: &[f64],
-) -> anyhow::Result<Report> {
-    let force_ref = rec
-        .force_n
-        .as_ref()
-        .ok_or_else(|| anyhow::anyhow!("{}: needs a force_n column", rec.path.display()))?;
-    for (c, name) in [(curve, "calibration"), (flat, "flat calibration")] {
-        anyhow::ensure!(
-            (c.rows, c.cols) == (g.rows, g.cols),
-            "the {name} is for {} x {}, the recording is {} x {}",
-            c.rows,
-            c.cols,
-            g.rows,
-            g.cols
-        );
-    }
-    let mut estimator = Estimator::new(DetectorConfig::default(), Some(model), 0.0);
-    let wrap = |c: &Calibration| {
-        Calibrator::new(
-            Arc::new(Loaded {
-                calibration: c.clone(),
-                generation: 1,
-            }),
-            f64::INFINITY,
-        )
-    };
-    let (mut cal_curve, mut cal_flat) = (wrap(curve), wrap(flat));
-    let mut estimate = None;
-    let mut forces = Vec::with_capacity(rec.len());
-    let (mut out_c, mut out_f) = (ForceSample::ZERO, ForceSample::ZERO);
-    for (i, frame) in frames(rec, g).enumerate() {
-        if estimate.is_none() {
-            if let Some(e) = estimator.push(&frame)? {
-                cal_curve.set_curvature(e);
-                let mut flat_est = *e;
-                flat_est.curvature_m1 = 0.0;
-                cal_flat.set_curvature(&flat_est);
-                // The estimate serves from the frame that completed its window on (live, that
-                // frame gets it or not depending on which process handles it first).
-                estimate = Some((e.curvature_m1 as f64, e.curvature_sd_m1 as f64, i));
-            }
-        }
-        if estimate.is_none() {
-            forces.push((f32::NAN, f32::NAN));
-            continue;
-        }
-        cal_curve.apply(&frame, frame.t_capture_ns, &mut out_c);
-        cal_flat.apply(&frame, frame.t_capture_ns, &mut out_f);
-        forces.push((force_of(&out_c), force_of(&out_f)));
-    }
-    let Some((c_pred, c_sd, at)) = estimate else {
-        anyhow::bail!(
-            "{}: no steady no-load period of {} frames before the first press: cannot predict the curvature",
-            rec.path.display(),
-            DetectorConfig::default().window_frames
-        );
-    };
+    has_flat: bool,
+) -> BlockScores {
     let mut results = Vec::new();
     for &target in levels {
         let (mut ef, mut ec) = (Vec::new(), Vec::new());
-        for w in level_windows(&rec.t_s, force_ref, target, LEVEL_TOLERANCE_N, LEVEL_MIN_S) {
+        for w in level_windows(&rec.t_s, reference, target, LEVEL_TOLERANCE_N, LEVEL_MIN_S) {
             for i in w {
                 let (c, f) = forces[i];
-                if c.is_finite() && f.is_finite() {
-                    ec.push((c as f64 - force_ref[i]).abs());
-                    ef.push((f as f64 - force_ref[i]).abs());
+                if c.is_finite() {
+                    ec.push((c as f64 - reference[i]).abs());
+                    ef.push((f as f64 - reference[i]).abs());
                 }
             }
         }
-        let (fm, fs) = mae_sd(&ef);
+        let (fm, fs) = if has_flat {
+            mae_sd(&ef)
+        } else {
+            (f64::NAN, f64::NAN)
+        };
         let (cm, cs) = mae_sd(&ec);
         results.push(LevelResult {
             target_n: target,
@@ -193,26 +227,181 @@ pub fn evaluate(
             curve_sd_n: cs,
         });
     }
+    let curve: Vec<f32> = forces.iter().map(|f| f.0).collect();
+    let flat: Vec<f32> = forces.iter().map(|f| f.1).collect();
+    BlockScores {
+        block,
+        levels: results,
+        overall: overall(&curve, reference),
+        overall_flat: has_flat.then(|| overall(&flat, reference)),
+        forces,
+    }
+}
+
+/// Runs the protocol. `flat` is optional when the curvature is given.
+pub fn evaluate_with(
+    rec: &Recording,
+    g: Geometry,
+    curvature: Curvature,
+    curve: &Calibration,
+    flat: Option<&Calibration>,
+    levels: &[f64],
+    headline: Headline,
+) -> anyhow::Result<Report> {
+    let reference = rec
+        .force_n
+        .as_ref()
+        .ok_or_else(|| anyhow::anyhow!("{}: needs a force_n column", rec.path.display()))?;
+    for (c, name) in [(Some(curve), "calibration"), (flat, "flat calibration")] {
+        let Some(c) = c else { continue };
+        anyhow::ensure!(
+            (c.rows, c.cols) == (g.rows, g.cols),
+            "the {name} is for {} x {}, the recording is {} x {}",
+            c.rows,
+            c.cols,
+            g.rows,
+            g.cols
+        );
+    }
+    let detector = DetectorConfig {
+        log_domain: curve.readout.log_domain(),
+        ..DetectorConfig::default()
+    };
+    let (model, given) = match curvature {
+        Curvature::Model(m) => (Some(m), None),
+        Curvature::Known(c) => (None, Some(c)),
+    };
+    let mut estimator = Estimator::new(detector, model, given.unwrap_or(0.0));
+    let wrap = |c: &Calibration| {
+        Calibrator::new(
+            Arc::new(Loaded {
+                calibration: c.clone(),
+                generation: 1,
+            }),
+            f64::INFINITY,
+        )
+    };
+    let mut cal_curve = wrap(curve);
+    let mut cal_flat = flat.map(wrap);
+    if let Some(c) = given {
+        // Until the first no-load window, the given curvature with the file's no-load reading.
+        cal_curve.set_known_curvature(c);
+        if let Some(f) = cal_flat.as_mut() {
+            f.set_known_curvature(0.0);
+        }
+    }
+    let mut estimate: Option<(f64, f64, usize)> = given.map(|c| (c, 0.0, 0));
+    let mut seen_estimate = false;
+    let n = rec.len();
+    let mut forces = [Vec::with_capacity(n), Vec::with_capacity(n)];
+    let (mut out_c, mut out_f) = (ForceSample::ZERO, ForceSample::ZERO);
+    for (i, frame) in frames(rec, g).enumerate() {
+        if let Some(e) = estimator.push(&frame)? {
+            // The first estimate serves from the frame that completed its window on (live,
+            // that frame gets it or not depending on which process handles it first). With a
+            // predicted curvature only the first estimate is used, as in the protocol.
+            if given.is_some() || !seen_estimate {
+                cal_curve.set_curvature(e);
+                if let Some(f) = cal_flat.as_mut() {
+                    let mut flat_est = *e;
+                    flat_est.curvature_m1 = 0.0;
+                    f.set_curvature(&flat_est);
+                }
+                if given.is_none() {
+                    estimate = Some((e.curvature_m1 as f64, e.curvature_sd_m1 as f64, i));
+                }
+                seen_estimate = true;
+            }
+        }
+        if estimate.is_none() {
+            for v in forces.iter_mut() {
+                v.push((f32::NAN, f32::NAN));
+            }
+            continue;
+        }
+        cal_curve.apply(&frame, frame.t_capture_ns, &mut out_c);
+        if let Some(f) = cal_flat.as_ref() {
+            f.apply(&frame, frame.t_capture_ns, &mut out_f);
+        }
+        for (k, b) in [Headline::Array, Headline::Center].into_iter().enumerate() {
+            let flat_force = if cal_flat.is_some() {
+                force_of(&out_f, b)
+            } else {
+                f32::NAN
+            };
+            forces[k].push((force_of(&out_c, b), flat_force));
+        }
+    }
+    let Some((c_pred, c_sd, mut at)) = estimate else {
+        anyhow::bail!(
+            "{}: no steady no-load period of {} frames before the first press: cannot predict the curvature",
+            rec.path.display(),
+            DetectorConfig::default().window_frames
+        );
+    };
+    if given.is_some() {
+        at = forces[0].iter().position(|f| f.0.is_finite()).ok_or_else(|| {
+            anyhow::anyhow!(
+                "{}: no steady no-load period was found and the calibration has no no_load_reading: no baseline to count the reading from",
+                rec.path.display()
+            )
+        })?;
+    }
+    let [array, center] = forces;
+    let has_flat = flat.is_some();
+    let blocks = vec![
+        score(rec, reference, Headline::Array, array, levels, has_flat),
+        score(rec, reference, Headline::Center, center, levels, has_flat),
+    ];
+    let head = blocks
+        .iter()
+        .find(|b| b.block == headline)
+        .unwrap_or(&blocks[0])
+        .clone();
     Ok(Report {
         curvature_pred_m1: c_pred,
         curvature_sd_m1: c_sd,
+        curvature_given: given.is_some(),
         estimate_at: at,
-        levels: results,
-        forces,
+        headline,
+        levels: head.levels,
+        overall: head.overall,
+        forces: head.forces,
+        blocks,
     })
 }
 
-/// The JSON object of `taxel calibrator eval --json`.
-pub fn json(r: &Report) -> String {
-    let num = |v: f64, n: usize| {
-        if n == 0 || !v.is_finite() {
-            "null".to_string()
-        } else {
-            format!("{v:.4}")
-        }
-    };
-    let levels: Vec<String> = r
-        .levels
+/// The paper's protocol with a curvature model and a flat calibration, the whole array as the
+/// headline.
+pub fn evaluate(
+    rec: &Recording,
+    g: Geometry,
+    model: &CurvatureModel,
+    curve: &Calibration,
+    flat: &Calibration,
+    levels: &[f64],
+) -> anyhow::Result<Report> {
+    evaluate_with(
+        rec,
+        g,
+        Curvature::Model(model),
+        curve,
+        Some(flat),
+        levels,
+        Headline::Array,
+    )
+}
+
+fn num(v: f64, n: usize) -> String {
+    if n == 0 || !v.is_finite() {
+        "null".to_string()
+    } else {
+        format!("{v:.4}")
+    }
+}
+
+fn levels_json(levels: &[LevelResult]) -> String {
+    let v: Vec<String> = levels
         .iter()
         .map(|l| {
             format!(
@@ -226,10 +415,43 @@ pub fn json(r: &Report) -> String {
             )
         })
         .collect();
+    format!("[{}]", v.join(", "))
+}
+
+fn overall_json(o: &Overall) -> String {
     format!(
-        "{{\"curvature_pred_m1\": {:.3}, \"levels\": [{}]}}",
+        "{{\"mae_n\": {}, \"rel_mae\": {}, \"frames\": {}}}",
+        num(o.mae_n, o.frames),
+        num(o.rel_mae, o.frames),
+        o.frames
+    )
+}
+
+/// The JSON object of `taxel calibrator eval --json`.
+pub fn json(r: &Report) -> String {
+    let blocks: Vec<String> = r
+        .blocks
+        .iter()
+        .map(|b| {
+            format!(
+                "\"{}\": {{\"levels\": {}, \"overall\": {}, \"overall_flat\": {}}}",
+                b.block.name(),
+                levels_json(&b.levels),
+                overall_json(&b.overall),
+                b.overall_flat
+                    .as_ref()
+                    .map_or("null".to_string(), overall_json)
+            )
+        })
+        .collect();
+    format!(
+        "{{\"curvature_pred_m1\": {:.3}, \"levels\": {}, \"overall\": {}, \"headline\": \"{}\", \"curvature_source\": \"{}\", \"blocks\": {{{}}}}}",
         r.curvature_pred_m1,
-        levels.join(", ")
+        levels_json(&r.levels),
+        overall_json(&r.overall),
+        r.headline.name(),
+        if r.curvature_given { "given" } else { "predicted" },
+        blocks.join(", ")
     )
 }
 
@@ -255,5 +477,15 @@ mod tests {
         let w = level_windows(&t, &f, 4.0, 0.2, 1.0);
         assert_eq!(w.len(), 1, "the 0.5 s window is too short");
         assert_eq!((w[0].start, w[0].end), (100, 250));
+    }
+
+    #[test]
+    fn overall_counts_frames_from_half_a_newton() {
+        let o = overall(&[1.0, 2.2, f32::NAN, 0.3], &[1.0, 2.0, 5.0, 0.4]);
+        assert_eq!(o.frames, 2);
+        assert!(
+            (o.mae_n - 0.1).abs() < 1e-6 && (o.rel_mae - 0.05).abs() < 1e-6,
+            "{o:?}"
+        );
     }
 }

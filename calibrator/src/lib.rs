@@ -1,5 +1,5 @@
 //! taxel-calibrator owns force calibration: the calibration file format and its validation
-//! (`calibration`), fitting calibrations from recordings (`fit`), hot reload of the file while
+//! (`calibration`), the model forms it can hold (`forms`), fitting calibrations from recordings (`fit`), hot reload of the file while
 //! the stream runs (`reload`), and the calibrator process that turns raw frames plus the latest
 //! curvature estimate into `ForceSample`s (`run`).
 
@@ -7,7 +7,7 @@ pub mod calibration;
 pub mod cli;
 pub mod evaluate;
 pub mod fit;
-pub mod physics;
+pub mod forms;
 pub mod plots;
 pub mod reload;
 pub mod run;

@@ -43,19 +43,48 @@ pub struct Summary {
 /// The pure per-frame computation (shared with offline evaluation).
 #[derive(Debug, Clone)]
 pub struct Calibrator {
-    pub loaded: Arc<Loaded>,
+    loaded: Arc<Loaded>,
+    /// The stream's no-load baseline (stream units), once an estimate brought one.
     baseline: Option<Box<[f32; MAX_NODES]>>,
+    /// The signal of the baseline in use (the stream's, else the file's `no_load_reading`).
+    base_signal: Box<[f64; MAX_NODES]>,
+    has_base: bool,
     curvature: Option<(f32, u64, u32)>,
     stale_ns: u64,
 }
 
 impl Calibrator {
     pub fn new(loaded: Arc<Loaded>, curvature_stale_s: f64) -> Calibrator {
-        Calibrator {
+        let mut c = Calibrator {
             loaded,
             baseline: None,
+            base_signal: Box::new([0.0; MAX_NODES]),
+            has_base: false,
             curvature: None,
             stale_ns: (curvature_stale_s.max(0.0) * 1e9) as u64,
+        };
+        c.refresh_base();
+        c
+    }
+
+    /// Recomputes the baseline's signal (after a new baseline or a new calibration, whose
+    /// readout may differ).
+    fn refresh_base(&mut self) {
+        let cal = &self.loaded.calibration;
+        let ro = cal.readout;
+        match &self.baseline {
+            Some(b) => {
+                for (d, v) in self.base_signal.iter_mut().zip(b.iter()) {
+                    *d = ro.signal(*v as f64);
+                }
+                self.has_base = true;
+            }
+            None => {
+                for (d, v) in self.base_signal.iter_mut().zip(&cal.no_load_reading) {
+                    *d = ro.signal(*v);
+                }
+                self.has_base = !cal.no_load_reading.is_empty();
+            }
         }
     }
 
@@ -66,6 +95,19 @@ impl Calibrator {
             .get_or_insert_with(|| Box::new([0.0; MAX_NODES]));
         b.copy_from_slice(&est.baseline);
         self.curvature = Some((est.curvature_m1, est.t_capture_ns, est.model_version));
+        self.refresh_base();
+    }
+
+    /// Uses a given curvature (1/m) until an estimate brings another; the baseline stays the
+    /// stream's or, until one arrives, the file's.
+    pub fn set_known_curvature(&mut self, c: f64) {
+        self.curvature = Some((c as f32, 0, 0));
+    }
+
+    /// Serves a (re)loaded calibration from the next frame on; the baseline carries over.
+    pub fn set_loaded(&mut self, loaded: Arc<Loaded>) {
+        self.loaded = loaded;
+        self.refresh_base();
     }
 
     pub fn calibration(&self) -> &Calibration {
@@ -104,30 +146,35 @@ impl Calibrator {
         };
         out.curvature_m1 = c as f32;
         let n = frame.n_nodes();
-        let Some(base) = &self.baseline else {
+        if self.baseline.is_none() {
             flags |= force_flags::NO_BASELINE;
+        }
+        if !self.has_base {
             out.total_force_n = f32::NAN;
             out.total_reading = f32::NAN;
             out.block_force_n = [f32::NAN; MAX_BLOCKS];
             out.block_reading = [f32::NAN; MAX_BLOCKS];
             out.flags = flags;
             return;
-        };
+        }
+        if self.baseline.is_none() {
+            flags |= force_flags::BASELINE_FROM_CALIBRATION;
+        }
+        let ro = cal.readout;
+        let base = &self.base_signal;
+        let node = |k: usize| ro.signal(frame.counts[k] as f64) - base[k];
         let reading = |nodes: &[usize]| -> f64 {
             if nodes.is_empty() {
-                (0..n).map(|k| (frame.counts[k] - base[k]) as f64).sum()
+                (0..n).map(node).sum()
             } else {
-                nodes
-                    .iter()
-                    .filter(|&&k| k < n)
-                    .map(|&k| (frame.counts[k] - base[k]) as f64)
-                    .sum()
+                nodes.iter().filter(|&&k| k < n).map(|&k| node(k)).sum()
             }
         };
+        let offset = cal.no_load_force_n;
         let s = reading(&cal.array.nodes);
         let e = cal.array.evaluate(s, c);
         out.total_reading = s as f32;
-        out.total_force_n = e.force_n as f32;
+        out.total_force_n = (offset + e.force_n) as f32;
         if e.out_of_range {
             flags |= force_flags::OUT_OF_RANGE;
         }
@@ -135,7 +182,7 @@ impl Calibrator {
             let s = reading(&b.nodes);
             let e = b.evaluate(s, c);
             out.block_reading[i] = s as f32;
-            out.block_force_n[i] = e.force_n as f32;
+            out.block_force_n[i] = (offset + e.force_n) as f32;
             if e.out_of_range {
                 flags |= force_flags::OUT_OF_RANGE;
             }
@@ -199,7 +246,7 @@ pub fn run(
                     generation = l.generation,
                     "now serving reloaded calibration"
                 );
-                cal.loaded = l;
+                cal.set_loaded(l);
                 summary.reloads += 1;
             }
             if (frame.rows as usize, frame.cols as usize) != (rows, cols) {

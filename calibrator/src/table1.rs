@@ -17,7 +17,7 @@ use taxel_plot::{Chart, Mark, Series};
 use taxel_sim::{Mounting, Scenario, SensorModel, Simulator, Step, Tremor};
 
 use crate::evaluate::{evaluate, Report};
-use crate::fit::{fit_calibration, FitOptions, Form};
+use crate::fit::{fit_calibration, FitOptions};
 
 /// The paper's objects and their curvature (1/m).
 pub const OBJECTS: [(&str, f64); 5] = [
@@ -167,13 +167,9 @@ pub fn run(
     let fixtures = simulate(sensor, &fixture_scenario(seed), &fixtures_path)?;
     files.push(fixtures_path);
     let opts = |flat: bool, id: &str| FitOptions {
-        form: Form::Auto,
-        flat,
-        id: id.into(),
-        version: 1,
         rows: Some(sensor.rows),
         cols: Some(sensor.cols),
-        max_curvature_m1: 100.0,
+        ..FitOptions::new(id, flat)
     };
     progress("fitting the calibrations");
     let (curve_text, curve, curve_report) = fit_calibration(

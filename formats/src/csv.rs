@@ -361,6 +361,15 @@ impl Recording {
         Ok(rec)
     }
 
+    /// The largest reference force at which a frame counts as unloaded (N): 0.02 N, or 1 % of
+    /// the recording's largest force when that is more (a load cell's noise and offset scale
+    /// with its range). None without a force column.
+    pub fn unloaded_limit_n(&self) -> Option<f64> {
+        let f = self.force_n.as_ref()?;
+        let max = f.iter().copied().fold(0.0, f64::max);
+        Some(0.02f64.max(0.01 * max))
+    }
+
     /// rows x cols for this recording (see [`Geometry::resolve`]).
     pub fn geometry(&self, rows: Option<usize>, cols: Option<usize>) -> Result<Geometry, CsvError> {
         Geometry::resolve(self.n_nodes, rows, cols).map_err(|reason| CsvError::Geometry {

@@ -222,6 +222,32 @@ impl Readout {
     }
 }
 
+/// A readout named on a command line: a kind, or `auto` (None: decide from the data).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ReadoutChoice(pub Option<ReadoutKind>);
+
+impl std::str::FromStr for ReadoutChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "auto" {
+            return Ok(ReadoutChoice(None));
+        }
+        ReadoutKind::parse(s)
+            .map(|k| ReadoutChoice(Some(k)))
+            .ok_or_else(|| {
+                format!(
+                    "unknown readout {s:?}: use amplifier, divider, resistance, inverted or auto"
+                )
+            })
+    }
+}
+
+impl fmt::Display for ReadoutChoice {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.0.map_or("auto", |k| k.name()))
+    }
+}
+
 /// Whether the readings rise or fall with force, when a force column tells.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Direction {

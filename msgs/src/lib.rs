@@ -71,6 +71,21 @@ pub mod raw_flags {
     pub const GAP_BEFORE: u32 = 1 << 0;
     /// At least one node sits at the top ADC code (rail clipping).
     pub const RAIL: u32 = 1 << 1;
+    /// Bits 8-11: the readout the source declares (0: not declared; 1 amplifier, 2 divider
+    /// rising with force, 3 divider falling, 4 resistance in ohms, 5 inverted ADC). Calibrators
+    /// and estimators refuse a declared readout their file was not made for.
+    pub const READOUT_SHIFT: u32 = 8;
+    pub const READOUT_MASK: u32 = 0xF << READOUT_SHIFT;
+
+    /// The readout code in `flags`.
+    pub fn readout_code(flags: u32) -> u32 {
+        (flags & READOUT_MASK) >> READOUT_SHIFT
+    }
+
+    /// `flags` with the readout code set to `code` (0..=15).
+    pub fn with_readout_code(flags: u32, code: u32) -> u32 {
+        (flags & !READOUT_MASK) | ((code << READOUT_SHIFT) & READOUT_MASK)
+    }
 }
 
 /// One scan of the array, stamped once at capture.
@@ -208,6 +223,9 @@ pub mod force_flags {
     pub const NO_BASELINE: u32 = 1 << 4;
     /// The raw frame followed a gap.
     pub const GAP_BEFORE: u32 = 1 << 5;
+    /// No no-load baseline has been measured on this stream yet: the forces use the
+    /// calibration file's `no_load_reading` (set together with `NO_BASELINE`).
+    pub const BASELINE_FROM_CALIBRATION: u32 = 1 << 6;
 }
 
 /// Calibrated forces for one frame.

@@ -10,11 +10,13 @@ use crate::fit::Observation;
 
 /// Knots of the inverse static law.
 const KNOTS: usize = 12;
+/// Most samples the curvature-gain search runs on.
+const SEARCH_OBS: usize = 20_000;
 /// Least force increase per segment (N): keeps the curve strictly increasing.
 const MIN_STEP_N: f64 = 1e-4;
 
 /// Knot positions at quantiles of the loaded readings, starting at 0.
-fn knots(xs: &[f64]) -> Vec<f64> {
+pub(super) fn knots(xs: &[f64]) -> Vec<f64> {
     let mut v: Vec<f64> = xs.iter().copied().filter(|x| *x > 0.0).collect();
     v.sort_by(f64::total_cmp);
     let mut t = vec![0.0];
@@ -48,7 +50,7 @@ fn basis(t: &[f64], k: usize, x: f64) -> f64 {
 
 /// Nonnegative (>= MIN_STEP_N) least squares on the increments, by coordinate descent on the
 /// normal equations. Returns the increments and the sum of squared errors.
-fn fit_increments(t: &[f64], xs: &[f64], fs: &[f64]) -> (Vec<f64>, f64) {
+pub(super) fn fit_increments(t: &[f64], xs: &[f64], fs: &[f64]) -> (Vec<f64>, f64) {
     let k = t.len() - 1;
     let mut a = vec![0.0; k * k];
     let mut b = vec![0.0; k];
@@ -153,12 +155,17 @@ pub fn fit_physics(obs: &[Observation], flat: bool) -> ModelSpec {
     let c_max = obs.iter().map(|o| o.c).fold(0.0, f64::max);
     let mut g = [0.0, 0.0];
     if !flat && c_max > 0.0 {
+        // The gains are searched on an evenly strided subset (at most SEARCH_OBS samples): the
+        // curve through the data hardly changes, the search gets many times faster.
+        let stride = obs.len().div_ceil(SEARCH_OBS).max(1);
+        let sub: Vec<Observation> = obs.iter().step_by(stride).copied().collect();
+        let sub_f: Vec<f64> = sub.iter().map(|o| o.f).collect();
         // g1 in [-0.9/c_max, 5/c_max]: from nearly no sensitivity left to six times more.
         let (lo1, hi1) = (-0.9 / c_max, 5.0 / c_max);
         let s2 = 1.0 / (c_max * c_max);
         for _ in 0..3 {
-            g[0] = golden(lo1, hi1, |v| sse_at(obs, &fs, [v, g[1]]));
-            g[1] = golden(-2.0 * s2, 4.0 * s2, |v| sse_at(obs, &fs, [g[0], v]));
+            g[0] = golden(lo1, hi1, |v| sse_at(&sub, &sub_f, [v, g[1]]));
+            g[1] = golden(-2.0 * s2, 4.0 * s2, |v| sse_at(&sub, &sub_f, [g[0], v]));
         }
     }
     let xs = flat_equivalent(obs, g);
