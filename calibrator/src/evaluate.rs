@@ -272,6 +272,11 @@ pub fn evaluate_with(
         Curvature::Known(c) => (None, Some(c)),
     };
     let mut estimator = Estimator::new(detector, model, given.unwrap_or(0.0));
+    if given.is_some() && curve.no_load_reading.len() == g.rows * g.cols {
+        // A known mounting: the calibration's no-load reading is where unloaded windows are
+        // expected (a steady loaded or saturated start is not mistaken for one).
+        estimator.seed_baseline(&curve.no_load_reading);
+    }
     let wrap = |c: &Calibration| {
         Calibrator::new(
             Arc::new(Loaded {

@@ -4,8 +4,9 @@
 //!
 //! Frames are grouped into consecutive windows of `window_frames`. For each node and window the
 //! detector measures, robustly (so rare spikes do not count):
-//! - the *level*: a trimmed mean (the 10 % highest and lowest values dropped);
-//! - the *spread*: 1.4826 x the median absolute deviation of the values;
+//! - the *level*: a trimmed mean (the 5 % highest and lowest values dropped);
+//! - the *spread*: the standard deviation of the same central 90 %, scaled to a normal's (rare
+//!   spikes are dropped, but a press filling part of the window is not);
 //! - the *noise*: the frame-to-frame noise from first differences (a trimmed mean of their
 //!   absolute values, scaled to a standard deviation), floored at half the reading's resolution
 //!   (the smallest step seen);
@@ -27,8 +28,11 @@
 
 /// Windows whose noise is remembered for the reference noise.
 const NOISE_HISTORY: usize = 64;
-/// Share of values dropped at each end for the trimmed level.
-const TRIM: f64 = 0.1;
+/// Share of values dropped at each end for the trimmed level and spread.
+const TRIM: f64 = 0.05;
+/// Standard deviation of the central 90 % of a standard normal: turns the trimmed standard
+/// deviation into a standard deviation.
+const TRIMMED_SD_NORMAL: f64 = 0.789;
 
 /// Detector settings; thresholds are in units of the stream's own noise.
 #[derive(Debug, Clone, PartialEq)]
@@ -145,12 +149,11 @@ fn node_stats(values: &[f64], scratch: &mut Vec<f64>) -> NodeStats {
     let cut = ((w as f64 * TRIM).floor() as usize).min((w - 1) / 2);
     let kept = &scratch[cut..w - cut];
     let level = kept.iter().sum::<f64>() / kept.len() as f64;
-    let median = scratch[w / 2];
-    for v in scratch.iter_mut() {
-        *v = (*v - median).abs();
-    }
-    scratch.sort_by(f64::total_cmp);
-    let spread = 1.4826 * scratch[w / 2];
+    // The spread: the standard deviation of the same central values, scaled to a normal's.
+    // Trimmed, not a median deviation: rare spikes are dropped, but a press that fills a
+    // third of the window still counts.
+    let var = kept.iter().map(|v| (v - level).powi(2)).sum::<f64>() / kept.len() as f64;
+    let spread = var.sqrt() / TRIMMED_SD_NORMAL;
     scratch.clear();
     let mut quantum = f64::INFINITY;
     for p in values.windows(2) {
@@ -251,6 +254,21 @@ impl BaselineDetector {
         self.has_current.then_some(&self.current_raw[..])
     }
 
+    /// Starts from a known no-load level (stream units, one per node), e.g. a calibration's:
+    /// the first windows are then judged against it (a stream that starts loaded, even steady
+    /// or saturated, is not taken as unloaded), and a new level replaces it only as a remount.
+    /// Nothing is published until a window confirms a level.
+    pub fn seed(&mut self, level: &[f64]) {
+        if level.len() != self.n {
+            self.resize(level.len());
+        }
+        for (k, &v) in level.iter().enumerate() {
+            self.current[k] = self.domain(v);
+            self.current_raw[k] = v;
+        }
+        self.has_current = true;
+    }
+
     /// The reference noise per node (judging domain), once a window has completed.
     pub fn noise(&self) -> Option<&[f64]> {
         (self.history_len > 0).then_some(&self.sigma[..])
@@ -291,7 +309,7 @@ impl BaselineDetector {
     /// interval has passed).
     pub fn push(&mut self, seq: u64, t_ns: u64, nodes: &[f32]) -> Option<&Baseline> {
         if nodes.len() != self.n {
-            // New geometry: start from scratch.
+            // New geometry: start from scratch (a seed for another geometry is dropped).
             self.resize(nodes.len());
         }
         if self.last_seq.is_some_and(|l| seq != l + 1) {

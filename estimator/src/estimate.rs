@@ -42,6 +42,11 @@ impl<'m> Estimator<'m> {
         }
     }
 
+    /// Starts the no-load detection from a known level (see [`BaselineDetector::seed`]).
+    pub fn seed_baseline(&mut self, level: &[f64]) {
+        self.detector.seed(level);
+    }
+
     /// Estimates published so far.
     pub fn count(&self) -> u32 {
         self.count

@@ -317,9 +317,10 @@ pub fn direction(sums: &[f64], force: &[f64]) -> Option<Direction> {
     })
 }
 
-/// The readouts consistent with a recording's values and (when known) direction, most likely
-/// first, and the reason in words. Several candidates are left for the caller to tell apart by
-/// held-out error (a rising ADC code can be an amplifier or a divider).
+/// The readouts consistent with a recording's values and (when known) direction, the simplest
+/// (linear in conductance) first, and the reason in words. Several candidates are left for the
+/// caller to tell apart by held-out error (a rising ADC code can be an amplifier or a divider;
+/// a falling whole number an inverting front end, rounded ohms or a divider).
 pub fn candidates(shape: &ValueShape, dir: Option<Direction>) -> (Vec<Readout>, String) {
     if !shape.adc_codes {
         let what = format!(
@@ -348,7 +349,7 @@ pub fn candidates(shape: &ValueShape, dir: Option<Direction>) -> (Vec<Readout>, 
     let fs = shape.full_scale();
     let bits = (fs + 1.0).log2().round() as u32;
     let what = format!(
-        "readings {}..{} are {bits}-bit ADC codes (full scale {fs})",
+        "readings {}..{} are whole numbers (ADC codes of a {bits}-bit range, full scale {fs}, or rounded ohms)",
         shape.min, shape.max
     );
     match dir {
@@ -362,6 +363,7 @@ pub fn candidates(shape: &ValueShape, dir: Option<Direction>) -> (Vec<Readout>, 
         Some(Direction::Falls) => (
             vec![
                 Readout::new(ReadoutKind::Inverted, fs),
+                Readout::new(ReadoutKind::Resistance, 0.0),
                 Readout {
                     kind: ReadoutKind::Divider,
                     full_scale: fs,
@@ -373,7 +375,7 @@ pub fn candidates(shape: &ValueShape, dir: Option<Direction>) -> (Vec<Readout>, 
         None => (
             vec![Readout::new(ReadoutKind::Amplifier, fs)],
             format!(
-                "{what}; no force column tells the direction: used as they are (amplifier); give --readout if the board is a divider or inverted"
+                "{what}; no force column tells the direction: used as they are (amplifier); give --readout if the board is a divider, inverted or logs ohms"
             ),
         ),
     }
@@ -451,13 +453,14 @@ mod tests {
         assert_eq!(codes.full_scale(), 4095.0);
         let (c, why) = candidates(&codes, Some(Direction::Rises));
         assert_eq!(c.len(), 2);
-        assert!(why.contains("12-bit"), "{why}");
+        assert!(why.contains("12-bit") && why.contains("4095"), "{why}");
         let ohms = ValueShape::of(&[3.5, 19000.0]);
         let (c, _) = candidates(&ohms, Some(Direction::Falls));
         assert_eq!(c[0].kind, ReadoutKind::Resistance);
         let tams = ValueShape::of(&[115.0, 5207.0]);
         let (c, _) = candidates(&tams, Some(Direction::Falls));
         assert_eq!(c[0].kind, ReadoutKind::Inverted);
+        assert_eq!(c.len(), 3);
         let f = [0.0, 0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
         let falling: Vec<f64> = f.iter().map(|x| 100.0 - x).collect();
         assert_eq!(direction(&falling, &f), Some(Direction::Falls));

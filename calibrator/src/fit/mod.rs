@@ -194,20 +194,33 @@ fn decide_readout(
         let rmse = choose_form(&obs, a.form, a.flat).map_or(f64::INFINITY, |(_, h, _)| h.rmse_n);
         scored.push((*c, rmse));
     }
-    scored.sort_by(|x, y| x.1.total_cmp(&y.1));
-    let (best, rmse) = scored[0];
-    let others: Vec<String> = scored[1..]
+    // The candidates come simplest first (a reading linear in conductance, then the
+    // non-linear ones): a later one must cut the held-out error by a quarter to be preferred
+    // (its extra non-linearity, and a full scale that is only a guess, must earn their place).
+    let mut best = 0;
+    for i in 1..scored.len() {
+        if scored[i].1 <= PARSIMONY * scored[best].1 {
+            best = i;
+        }
+    }
+    let (chosen, rmse) = scored[best];
+    let others: Vec<String> = scored
         .iter()
-        .map(|(c, e)| format!("{} {e:.3} N", c.kind.name()))
+        .enumerate()
+        .filter(|(i, _)| *i != best)
+        .map(|(_, (c, e))| format!("{} {e:.3} N", c.kind.name()))
         .collect();
     Ok((
-        best,
+        chosen,
         format!(
-            "readout auto: {why}; {best}: held-out RMSE of the whole array {rmse:.3} N against {}",
+            "readout auto: {why}; {chosen}: held-out RMSE of the whole array {rmse:.3} N against {} (a non-linear readout must be 25 % better than the reading linear in conductance)",
             others.join(", ")
         ),
     ))
 }
+
+/// A readout candidate after the first is preferred only below this share of its error.
+const PARSIMONY: f64 = 0.75;
 
 /// The likely cause of a fit that fails the honesty checks, in words.
 fn likely_cause(bases: &Baselines, readout: &Readout, f_max: f64) -> String {
@@ -225,46 +238,54 @@ fn likely_cause(bases: &Baselines, readout: &Readout, f_max: f64) -> String {
     )
 }
 
-/// Leaves out (or, when asked, keeps) the fixtures whose reading stops rising with force.
+/// Leaves out (or, when asked, keeps) the fixtures whose reading stops rising with force. When
+/// every fixture is so (a single flat fixture whose presses land on different spots), they are
+/// kept with a warning: there is nothing else to fit.
 fn drop_non_monotone(
     obs: &mut Vec<Observation>,
     block: &str,
     keep: bool,
     report: &mut Vec<String>,
 ) -> anyhow::Result<()> {
-    let mut dropped = Vec::new();
-    for (c, idx) in fixtures(obs) {
-        if let Some(nm) = check_fixture(obs, &idx, c) {
-            report.push(format!(
-                "block {block:>6}: fixture C = {c:.1} 1/m is not monotone: the reading peaks at S = {:.1} near {:.1} N and falls to {:.1} near {:.1} N; {}",
-                nm.peak_s,
-                nm.peak_f,
-                nm.low_s,
-                nm.low_f,
-                if keep { "kept (--keep-non-monotone)" } else { "left out of the surface (--keep-non-monotone keeps it)" }
-            ));
-            if !keep {
-                dropped.extend(idx);
-            }
+    let groups = fixtures(obs);
+    let mut bad = Vec::new();
+    for (c, idx) in &groups {
+        if let Some(nm) = check_fixture(obs, idx, *c) {
+            bad.push((nm, idx));
         }
     }
-    if !dropped.is_empty() {
-        dropped.sort_unstable();
-        let mut it = dropped.iter().peekable();
-        let mut i = 0;
-        obs.retain(|_| {
-            let out = it.peek().is_some_and(|&&d| d == i);
-            if out {
-                it.next();
+    let keep_all = keep || bad.len() == groups.len();
+    for (nm, _) in &bad {
+        report.push(format!(
+            "block {block:>6}: fixture C = {:.1} 1/m is not monotone: the median reading peaks at S = {:.1} near {:.1} N and falls to {:.1} near {:.1} N; {}",
+            nm.curvature_m1,
+            nm.peak_s,
+            nm.peak_f,
+            nm.low_s,
+            nm.low_f,
+            if keep {
+                "kept (--keep-non-monotone)"
+            } else if keep_all {
+                "kept, as no fixture is monotone (the presses may land on different spots, or the reading saturates)"
+            } else {
+                "left out of the surface (--keep-non-monotone keeps it)"
             }
-            i += 1;
-            !out
-        });
-        anyhow::ensure!(
-            !obs.is_empty(),
-            "block {block}: every fixture's reading stops rising with force; nothing left to fit (--keep-non-monotone keeps them)"
-        );
+        ));
     }
+    if keep_all || bad.is_empty() {
+        return Ok(());
+    }
+    let mut out = vec![false; obs.len()];
+    for (_, idx) in &bad {
+        for &i in idx.iter() {
+            out[i] = true;
+        }
+    }
+    let mut i = 0;
+    obs.retain(|_| {
+        i += 1;
+        !out[i - 1]
+    });
     Ok(())
 }
 
@@ -301,9 +322,28 @@ fn fit_block(
         }
         report.push(format!("WARNING (written anyway, --accept-poor-fit): {e}"));
     }
-    let spec = fit_form(&obs, form, a.flat)?;
-    let model = validate_model(name, &spec).map_err(|e| anyhow::anyhow!(e))?;
-    let range = fitted_range(&obs, &model)?;
+    // The chosen form on all the data; should it not increase from S = 0 (a polynomial can
+    // start downhill), the next best form by held-out error.
+    let mut ranked = tried.clone();
+    ranked.sort_by(|x, y| x.1.rmse_n.total_cmp(&y.1.rmse_n));
+    let mut fitted = None;
+    for (f, _) in std::iter::once((form, held.clone())).chain(ranked) {
+        let spec = fit_form(&obs, f, a.flat)?;
+        let model = validate_model(name, &spec).map_err(|e| anyhow::anyhow!(e))?;
+        match fitted_range(&obs, &model) {
+            Ok(range) => {
+                fitted = Some((f, spec, model, range));
+                break;
+            }
+            Err(_) => report.push(format!(
+                "block {name:>6}: the {} form does not increase from S = 0 on all the data; next best",
+                f.name()
+            )),
+        }
+    }
+    let Some((form, spec, model, range)) = fitted else {
+        anyhow::bail!(FitError::NotMonotone);
+    };
     let smax = range.s[1];
     let within: Vec<Observation> = obs
         .iter()

@@ -278,3 +278,42 @@ fn a_stream_that_starts_in_a_hand_gets_its_baseline_only_once_released() {
         );
     }
 }
+
+#[test]
+fn a_seeded_detector_does_not_take_a_steady_loaded_start_as_unloaded() {
+    let base: Vec<f64> = (0..4).map(|k| 5000.0 - 10.0 * k as f64).collect();
+    let mut s = Stream::new(base.clone(), 2.0, -600.0, 9);
+    let mut d = detector(false);
+    d.seed(&base);
+    // Starts pressed to saturation-like steadiness (the reading far below the seed).
+    assert!(s.feed(&mut d, 10.0, 6.0, 0.0).is_empty());
+    let got = s.feed(&mut d, 2.0, 0.0, 0.0);
+    assert!(
+        !got.is_empty() && !got[0].remount,
+        "the unloaded level confirms the seed"
+    );
+    assert!((got[0].mean[0] - 5000.0).abs() < 2.0);
+    // Unseeded, the same start is (unavoidably) taken as the first baseline.
+    let mut s = Stream::new(base, 2.0, -600.0, 9);
+    let mut d = detector(false);
+    let first = s.feed(&mut d, 10.0, 6.0, 0.0);
+    assert!(!first.is_empty() && first[0].mean[0] < 2000.0);
+}
+
+#[test]
+fn a_window_that_is_partly_a_press_is_not_steady() {
+    let base = vec![5000.0; 2];
+    let mut s = Stream::new(base.clone(), 3.0, -600.0, 10);
+    let mut d = detector(false);
+    d.seed(&base);
+    // Windows of 100 frames: 65 at rest, then a 35-frame press, over and over.
+    for _ in 0..6 {
+        assert!(s.feed(&mut d, 0.65, 0.0, 0.0).len() <= 1);
+        assert!(s.feed(&mut d, 0.35, 5.0, 0.0).is_empty());
+    }
+    assert!(
+        (d.current().map_or(0.0, |c| c[0]) - 5000.0).abs() < 5.0,
+        "{:?}",
+        d.current()
+    );
+}
