@@ -36,6 +36,8 @@ pub struct Summary {
     pub dropped: u64,
     pub reloads: u32,
     pub geometry_mismatches: u64,
+    /// Frames skipped because the stream declares another readout than the calibration's.
+    pub readout_mismatches: u64,
     /// What the adaptive wake-up did (zero in other modes).
     pub wake: taxel_runtime::wake::AdaptiveStats,
 }
@@ -225,6 +227,7 @@ pub fn run(
     let mut summary = Summary::default();
     let mut seq = SeqTracker::default();
     let mut mismatch_reported = false;
+    let mut readout_reported = false;
     let mut gap_first = taxel_runtime::process::restarted();
     let mut last_report = Instant::now();
     let mut frames_at_report = 0;
@@ -257,6 +260,19 @@ pub fn run(
                         frame.rows, frame.cols
                     );
                     mismatch_reported = true;
+                }
+                return Ok(());
+            }
+            let code = raw_flags::readout_code(frame.flags);
+            if let Err(reason) = cal.calibration().readout.check_stream(
+                &cfg.calibration.display().to_string(),
+                code,
+                frame.full_scale as f64,
+            ) {
+                summary.readout_mismatches += 1;
+                if !readout_reported {
+                    error!("{reason}; frames are skipped");
+                    readout_reported = true;
                 }
                 return Ok(());
             }

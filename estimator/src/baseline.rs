@@ -254,6 +254,14 @@ impl BaselineDetector {
         self.has_current.then_some(&self.current_raw[..])
     }
 
+    /// Judges the readings in the log domain from now on (a stream found to report ohms); only
+    /// before the first window completes.
+    pub fn set_log_domain(&mut self, on: bool) {
+        if self.history_len == 0 && self.count == 0 {
+            self.cfg.log_domain = on;
+        }
+    }
+
     /// Starts from a known no-load level (stream units, one per node), e.g. a calibration's:
     /// the first windows are then judged against it (a stream that starts loaded, even steady
     /// or saturated, is not taken as unloaded), and a new level replaces it only as a remount.

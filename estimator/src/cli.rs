@@ -12,6 +12,7 @@ use tracing::info;
 use crate::baseline::DetectorConfig;
 use crate::model::{CurvatureModel, Kind, Metrics, TrainOptions};
 use crate::synth::{Spec, World};
+use taxel_formats::readout::ReadoutChoice;
 use taxel_runtime::progress::Progress;
 
 /// No-load baselines and the mounting curvature of a sensor.
@@ -57,6 +58,14 @@ pub struct TrainArgs {
     /// on the training data, SVG and PNG) and train.md (this report) into this directory.
     #[arg(long)]
     pub plots: Option<PathBuf>,
+    /// What the readings are: amplifier, divider, resistance, inverted, or auto (from the
+    /// data: one printed line says what and why; baselines without force_n are used as
+    /// recorded).
+    #[arg(long, default_value_t = ReadoutChoice::default())]
+    pub readout: ReadoutChoice,
+    /// The ADC's full scale (default: the smallest 2^b - 1 at or above the largest reading).
+    #[arg(long)]
+    pub full_scale: Option<f64>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -206,8 +215,22 @@ fn train(a: TrainArgs) -> Result<(), Failure> {
             a.epochs
         )));
     }
-    let samples = crate::dataset::load(&a.data).config_err()?;
+    if let Some(fs) = a.full_scale {
+        if !(fs.is_finite() && (1.0..=1e9).contains(&fs)) {
+            return Err(Failure::config(anyhow::anyhow!(
+                "--full-scale must be 1..=1e9, got {fs}"
+            )));
+        }
+    }
+    let recs = crate::dataset::read_all(&a.data).config_err()?;
+    let (readout, why) = crate::dataset::readout_for(&recs, a.readout.0, a.full_scale)
+        .map_err(|e| anyhow::anyhow!(e))
+        .config_err()?;
+    println!("{why}");
+    let samples = crate::dataset::samples(&recs).config_err()?;
+    drop(recs);
     let opts = TrainOptions {
+        readout,
         kind: a.model,
         seed: a.seed,
         mlp: crate::model::mlp::MlpConfig {

@@ -1,15 +1,14 @@
 //! Training samples from recordings: each trial (the `trial` column, or each contiguous run of
 //! one curvature when there is none) becomes one sample, the per-node mean of its no-load frames
-//! (reference force at most `NO_LOAD_FORCE_N`, or all frames when the recording has no force),
-//! labelled with the trial's curvature.
+//! (reference force at most `Recording::unloaded_limit_n`, or all frames when the recording has
+//! no force), labelled with the trial's curvature. [`readout_for`] decides the readout the
+//! baselines are read with.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use taxel_formats::Recording;
-
-/// Force at or below which a frame is unloaded (N).
-pub const NO_LOAD_FORCE_N: f64 = 0.02;
+use taxel_formats::readout::{candidates, direction, Direction, ValueShape};
+use taxel_formats::{Readout, ReadoutKind, Recording};
 
 /// One baseline measurement.
 #[derive(Debug, Clone, PartialEq)]
@@ -76,8 +75,9 @@ pub fn samples_of(rec: &Recording, source: usize) -> Result<Vec<Sample>, Dataset
     let trials = trial_ids(rec, curv);
     let n = rec.n_nodes;
     let mut acc: BTreeMap<i64, (Vec<f64>, usize, f64)> = BTreeMap::new();
+    let limit = rec.unloaded_limit_n().unwrap_or(0.0);
     for i in 0..rec.len() {
-        if rec.force_n.as_ref().is_some_and(|f| f[i] > NO_LOAD_FORCE_N) {
+        if rec.force_n.as_ref().is_some_and(|f| f[i] > limit) {
             continue;
         }
         let e = acc
@@ -110,10 +110,78 @@ pub fn samples_of(rec: &Recording, source: usize) -> Result<Vec<Sample>, Dataset
 
 /// Samples of several recordings, which must have the same node count.
 pub fn load(paths: &[impl AsRef<Path>]) -> Result<Vec<Sample>, DatasetError> {
+    samples(&read_all(paths)?)
+}
+
+/// Reads recordings.
+pub fn read_all(paths: &[impl AsRef<Path>]) -> Result<Vec<Recording>, DatasetError> {
+    let mut out = Vec::with_capacity(paths.len());
+    for p in paths {
+        out.push(Recording::read(p.as_ref())?);
+    }
+    Ok(out)
+}
+
+/// The readout of training recordings: the one given (`choice`), checked against the
+/// direction of the readings with force when a force column tells; or, for `auto`, decided from
+/// the values (and the direction). Without a force column, whole numbers are used as recorded
+/// (None: the readout is not determined). Returns it and one line saying what and why.
+pub fn readout_for(
+    recs: &[Recording],
+    choice: Option<ReadoutKind>,
+    full_scale: Option<f64>,
+) -> Result<(Option<Readout>, String), String> {
+    let mut values = Vec::new();
+    let mut sums = Vec::new();
+    let mut force = Vec::new();
+    let with_force = recs.iter().all(|r| r.force_n.is_some());
+    for r in recs {
+        values.extend_from_slice(&r.nodes);
+        if with_force {
+            sums.extend((0..r.len()).map(|i| r.sample(i).iter().sum::<f64>()));
+            force.extend_from_slice(r.force_n.as_deref().unwrap_or(&[]));
+        }
+    }
+    let shape = ValueShape::of(&values);
+    let dir = direction(&sums, &force);
+    let fs = full_scale.unwrap_or_else(|| shape.full_scale());
+    if let Some(kind) = choice {
+        let mut r = Readout::new(kind, fs);
+        if let Some(d) = dir {
+            let rises = d == Direction::Rises;
+            if kind == ReadoutKind::Divider {
+                r.rises = rises;
+            } else if r.rises != rises {
+                return Err(format!(
+                    "--readout {}: the readings {} with force_n, but a {} reading {} (wrong readout direction; try --readout auto)",
+                    kind.name(),
+                    if rises { "rise" } else { "fall" },
+                    kind.name(),
+                    if r.rises { "rises" } else { "falls" }
+                ));
+            }
+        }
+        return Ok((Some(r), format!("readout {r} (as given)")));
+    }
+    let (mut cands, why) = candidates(&shape, dir);
+    if let Some(fs) = full_scale {
+        cands.iter_mut().for_each(|c| c.full_scale = fs);
+    }
+    if dir.is_none() && shape.adc_codes {
+        return Ok((
+            None,
+            format!("readout auto: {why}; the model records no readout (any stream's is accepted)"),
+        ));
+    }
+    let r = cands[0];
+    Ok((Some(r), format!("readout auto: {why}: {r}")))
+}
+
+/// Samples of several recordings, which must have the same node count.
+pub fn samples(recs: &[Recording]) -> Result<Vec<Sample>, DatasetError> {
     let mut out = Vec::new();
     let mut first: Option<(String, usize)> = None;
-    for (i, p) in paths.iter().enumerate() {
-        let rec = Recording::read(p.as_ref())?;
+    for (i, rec) in recs.iter().enumerate() {
         match &first {
             None => first = Some((rec.path.display().to_string(), rec.n_nodes)),
             Some((f, b)) if *b != rec.n_nodes => {
@@ -126,7 +194,7 @@ pub fn load(paths: &[impl AsRef<Path>]) -> Result<Vec<Sample>, DatasetError> {
             }
             _ => {}
         }
-        out.extend(samples_of(&rec, i)?);
+        out.extend(samples_of(rec, i)?);
     }
     if out.is_empty() {
         return Err(DatasetError::Empty);

@@ -26,11 +26,15 @@ pub struct Estimator<'m> {
 }
 
 impl<'m> Estimator<'m> {
+    /// The detector judges in the log domain when the model's readout is a resistance.
     pub fn new(
-        detector: DetectorConfig,
+        mut detector: DetectorConfig,
         model: Option<&'m CurvatureModel>,
         configured_m1: f64,
     ) -> Estimator<'m> {
+        if let Some(r) = model.and_then(|m| m.readout.as_ref()) {
+            detector.log_domain = r.log_domain();
+        }
         Estimator {
             detector: BaselineDetector::new(detector),
             model: model.map(|m| (m, m.predictor())),
@@ -59,12 +63,23 @@ impl<'m> Estimator<'m> {
     }
 
     /// Feeds a frame; returns a new estimate when a no-load window completes. Fails once, on
-    /// the first frame, if the model was made for another node count.
+    /// the first frame, if the model was made for another node count or readout.
     pub fn push(&mut self, frame: &RawFrame) -> Result<Option<&CurvatureEstimate>, ModelError> {
         if !self.checked {
             self.checked = true;
+            let code = taxel_msgs::raw_flags::readout_code(frame.flags);
+            let mut readout_known = false;
             if let Some((m, _)) = &self.model {
                 m.check_nodes("curvature model", frame.n_nodes())?;
+                m.check_stream(code, frame.full_scale as f64)?;
+                readout_known = m.readout.is_some();
+            }
+            // Without a readout of its own, the stream's declared one sets the judging domain.
+            if let (false, Some((kind, _))) =
+                (readout_known, taxel_formats::Readout::kind_of_code(code))
+            {
+                self.detector
+                    .set_log_domain(kind == taxel_formats::ReadoutKind::Resistance);
             }
         }
         let Some(b) = self

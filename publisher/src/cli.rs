@@ -65,6 +65,11 @@ pub struct SerialArgs {
     /// No valid frame for this long: the device is stalled (s).
     #[arg(long, default_value_t = 1.0)]
     pub stall_s: f64,
+    /// The board's readout, declared in every frame (calibrators and estimators refuse
+    /// another): amplifier (the paper's board), divider (rising with force), divider-falling,
+    /// resistance, inverted.
+    #[arg(long, default_value = "amplifier", value_parser = parse_readout)]
+    pub readout: u32,
 }
 
 #[derive(Debug, clap::Args)]
@@ -123,9 +128,35 @@ pub struct ReplayArgs {
     /// Full-scale reading, for rail detection (0: unknown).
     #[arg(long, default_value_t = 0.0)]
     pub full_scale: f32,
+    /// The recording's readout, declared in every frame (calibrators and estimators refuse
+    /// another): amplifier, divider (rising with force), divider-falling, resistance, inverted
+    /// (default: none declared).
+    #[arg(long, value_parser = parse_readout)]
+    pub readout: Option<u32>,
     /// Start over at the end.
     #[arg(long = "loop")]
     pub repeat: bool,
+}
+
+/// A declared readout's code (`Readout::code`).
+fn parse_readout(s: &str) -> Result<u32, String> {
+    use taxel_formats::{Readout, ReadoutKind};
+    let r = match s {
+        "divider-falling" => Readout {
+            kind: ReadoutKind::Divider,
+            full_scale: 0.0,
+            rises: false,
+        },
+        other => Readout::new(
+            ReadoutKind::parse(other).ok_or_else(|| {
+                format!(
+                    "unknown readout {other:?}: use amplifier, divider, divider-falling, resistance or inverted"
+                )
+            })?,
+            0.0,
+        ),
+    };
+    Ok(r.code())
 }
 
 fn read_toml<T>(
@@ -219,11 +250,13 @@ fn run(args: Args) -> Result<(), Failure> {
                 a.full_scale,
                 a.repeat,
             )
-            .config_err()?,
+            .config_err()?
+            .with_readout_code(a.readout.unwrap_or(0)),
         ),
         SourceArgs::Replay(a) => Box::new(
             ReplaySource::open(&a.file, a.rows, a.cols, a.speed, a.full_scale, a.repeat)
-                .config_err()?,
+                .config_err()?
+                .with_readout_code(a.readout.unwrap_or(0)),
         ),
     };
     let shutdown = Shutdown::install().runtime_err()?;
@@ -262,6 +295,7 @@ fn serial(args: &Args, a: &SerialArgs) -> Result<(), Failure> {
         cols: a.cols,
         max_count: a.max_count,
         stall_s: a.stall_s,
+        readout_code: a.readout,
     };
     let shutdown = Shutdown::install().runtime_err()?;
     let ipc =

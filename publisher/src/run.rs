@@ -49,6 +49,7 @@ pub fn publish(
     frame.cols = cols as u16;
     frame.source = source.kind();
     frame.full_scale = source.full_scale();
+    let readout = source.readout_code();
     let mut reference = Reference {
         seq: 0,
         t_capture_ns: 0,
@@ -103,7 +104,7 @@ pub fn publish(
             summary.late_resets += 1;
         }
         frame.t_capture_ns = now_ns();
-        frame.flags = 0;
+        frame.flags = raw_flags::with_readout_code(0, readout);
         if gap_first {
             // Frames were lost while the previous incarnation was down.
             frame.flags |= raw_flags::GAP_BEFORE;

@@ -34,8 +34,28 @@ pub trait Source {
     fn kind(&self) -> u32;
     /// Full-scale reading (0 if unknown).
     fn full_scale(&self) -> f32;
+    /// The readout it declares in every frame's flags (`Readout::code`; 0: undeclared).
+    fn readout_code(&self) -> u32 {
+        0
+    }
     /// Writes the next frame's `rows * cols` readings; `None` at the end of the source.
     fn next_frame(&mut self, out: &mut [f32]) -> Option<Produced>;
+}
+
+/// The readout code a simulated board declares.
+pub fn sim_readout_code(r: &taxel_sim::model::Readout) -> u32 {
+    use taxel_formats::{Readout, ReadoutKind as K};
+    let kind = match r.kind {
+        taxel_sim::ReadoutKind::Amplifier => K::Amplifier,
+        taxel_sim::ReadoutKind::Resistance => K::Resistance,
+        taxel_sim::ReadoutKind::Divider => K::Divider,
+    };
+    Readout {
+        kind,
+        full_scale: r.max_code(),
+        rises: kind == K::Amplifier,
+    }
+    .code()
 }
 
 /// The simulator as a source.
@@ -76,6 +96,9 @@ impl Source for SimSource {
     fn full_scale(&self) -> f32 {
         self.sim.full_scale() as f32
     }
+    fn readout_code(&self) -> u32 {
+        sim_readout_code(&self.sim.model().readout)
+    }
     fn next_frame(&mut self, out: &mut [f32]) -> Option<Produced> {
         if let Some(r) = self.remaining.as_mut() {
             if *r == 0 {
@@ -108,9 +131,16 @@ pub struct ReplaySource {
     repeat: bool,
     pass: u64,
     offset_s: f64,
+    readout_code: u32,
 }
 
 impl ReplaySource {
+    /// Declares the recording's readout in every frame (`Readout::code`; 0: undeclared).
+    pub fn with_readout_code(mut self, code: u32) -> ReplaySource {
+        self.readout_code = code;
+        self
+    }
+
     pub fn open(
         path: &Path,
         rows: Option<usize>,
@@ -185,6 +215,7 @@ impl ReplaySource {
             repeat,
             pass: 0,
             offset_s: 0.0,
+            readout_code: 0,
             rec,
         })
     }
@@ -199,6 +230,9 @@ impl Source for ReplaySource {
     }
     fn kind(&self) -> u32 {
         source::REPLAY
+    }
+    fn readout_code(&self) -> u32 {
+        self.readout_code
     }
     fn full_scale(&self) -> f32 {
         self.full_scale

@@ -11,7 +11,7 @@ pub mod ridge;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
-use taxel_formats::envelope;
+use taxel_formats::{envelope, Readout};
 use taxel_sim::rng::Rng;
 
 use crate::dataset::Sample;
@@ -20,7 +20,8 @@ use mlp::{Mlp, MlpConfig, MlpF32};
 use ridge::Ridge;
 
 pub const MAGIC: &[u8; 8] = b"TAXELCRV";
-pub const FORMAT_VERSION: u16 = 1;
+/// Version 2 added the readout; version 1 files (the paper's amplifier) still load.
+pub const FORMAT_VERSION: u16 = 2;
 
 /// Which model to train.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -100,6 +101,56 @@ pub struct CurvatureModel {
     pub feature_min: Vec<f64>,
     pub feature_max: Vec<f64>,
     pub training: TrainingSummary,
+    /// The readout the baselines were read with: their signal (rising with conductance) is
+    /// what the features are made of. None: the readings were used as recorded and the
+    /// readout was not determined (no stream is refused for it).
+    pub readout: Option<Readout>,
+}
+
+/// A version 1 model file (no readout): the readings were used as recorded.
+#[derive(Deserialize)]
+struct ModelV1 {
+    model_version: u32,
+    kind: String,
+    n_nodes: usize,
+    feature_names: Vec<String>,
+    standardizer: Standardizer,
+    y_mean: f64,
+    y_sd: f64,
+    regressor: Regressor,
+    validation: Metrics,
+    feature_min: Vec<f64>,
+    feature_max: Vec<f64>,
+    training: TrainingSummary,
+}
+
+impl From<ModelV1> for CurvatureModel {
+    fn from(m: ModelV1) -> CurvatureModel {
+        CurvatureModel {
+            model_version: m.model_version,
+            kind: m.kind,
+            n_nodes: m.n_nodes,
+            feature_names: m.feature_names,
+            standardizer: m.standardizer,
+            y_mean: m.y_mean,
+            y_sd: m.y_sd,
+            regressor: m.regressor,
+            validation: m.validation,
+            feature_min: m.feature_min,
+            feature_max: m.feature_max,
+            training: m.training,
+            readout: None,
+        }
+    }
+}
+
+/// The signal of each reading of a baseline (the readings themselves without a readout).
+pub fn signal_of(readout: Option<&Readout>, baseline: &[f64], out: &mut Vec<f64>) {
+    out.clear();
+    match readout {
+        Some(r) => out.extend(baseline.iter().map(|&v| r.signal(v))),
+        None => out.extend_from_slice(baseline),
+    }
 }
 
 /// Why a model could not be trained, loaded or used.
@@ -120,6 +171,8 @@ pub enum ModelError {
     },
     #[error("need at least 8 samples to train, have {0}")]
     TooFew(usize),
+    #[error("{0}")]
+    Readout(String),
 }
 
 /// A prediction.
@@ -131,13 +184,15 @@ pub struct Prediction {
     pub out_of_range: bool,
 }
 
-fn features_of(samples: &[Sample]) -> Vec<Vec<f64>> {
+fn features_of(samples: &[Sample], readout: Option<&Readout>) -> Vec<Vec<f64>> {
     let mut scratch = Vec::new();
+    let mut sig = Vec::new();
     samples
         .iter()
         .map(|s| {
             let mut f = vec![0.0; n_features(s.baseline.len())];
-            raw_features(&s.baseline, &mut scratch, &mut f);
+            signal_of(readout, &s.baseline, &mut sig);
+            raw_features(&sig, &mut scratch, &mut f);
             f
         })
         .collect()
@@ -167,6 +222,8 @@ pub struct TrainOptions {
     pub mlp: MlpConfig,
     /// Share of samples held out for validation.
     pub val_share: f64,
+    /// The readout of the baselines (None: used as recorded).
+    pub readout: Option<Readout>,
 }
 
 impl Default for TrainOptions {
@@ -176,6 +233,7 @@ impl Default for TrainOptions {
             seed: 1,
             mlp: MlpConfig::default(),
             val_share: 0.25,
+            readout: None,
         }
     }
 }
@@ -248,7 +306,7 @@ pub fn train(
     if n < 8 {
         return Err(ModelError::TooFew(n));
     }
-    let raw = features_of(samples);
+    let raw = features_of(samples, opts.readout.as_ref());
     let labels: Vec<f64> = samples.iter().map(|s| s.curvature_m1).collect();
     // Seeded 75/25 split.
     let mut idx: Vec<usize> = (0..n).collect();
@@ -348,6 +406,7 @@ pub fn train(
             seed: opts.seed,
             candidates,
         },
+        readout: opts.readout,
     };
     let bytes =
         envelope::encode("curvature model", MAGIC, FORMAT_VERSION, &model).unwrap_or_default();
@@ -381,11 +440,27 @@ impl CurvatureModel {
     }
 
     pub fn from_bytes(path: &str, bytes: &[u8]) -> Result<CurvatureModel, ModelError> {
-        let m: CurvatureModel = envelope::decode("curvature model", MAGIC, FORMAT_VERSION, bytes)
-            .map_err(|source| ModelError::Format {
+        let format = |source| ModelError::Format {
             path: path.to_string(),
             error: source,
-        })?;
+        };
+        let m: CurvatureModel =
+            match envelope::decode::<ModelV1>("curvature model", MAGIC, 1, bytes) {
+                Ok(v1) => CurvatureModel::from(v1),
+                Err(envelope::EnvelopeError::Version { .. }) => {
+                    envelope::decode("curvature model", MAGIC, FORMAT_VERSION, bytes)
+                        .map_err(format)?
+                }
+                Err(e) => return Err(format(e)),
+            };
+        if let Some(r) = &m.readout {
+            r.validate().map_err(|reason| {
+                format(envelope::EnvelopeError::Corrupt {
+                    kind: "curvature model",
+                    reason,
+                })
+            })?;
+        }
         let d = n_features(m.n_nodes);
         let ok = m.feature_names.len() == d
             && m.standardizer.mean.len() == d
@@ -420,6 +495,21 @@ impl CurvatureModel {
         Ok(())
     }
 
+    /// Checks the model can read a stream that declares readout `code` (0: undeclared) and
+    /// full scale `full_scale` (0: unknown).
+    pub fn check_stream(&self, code: u32, full_scale: f64) -> Result<(), ModelError> {
+        match &self.readout {
+            Some(r) => r
+                .check_stream(
+                    &format!("curvature model {:08x}", self.model_version),
+                    code,
+                    full_scale,
+                )
+                .map_err(ModelError::Readout),
+            None => Ok(()),
+        }
+    }
+
     /// A predictor with preallocated buffers (no allocation per prediction).
     pub fn predictor(&self) -> Predictor<'_> {
         Predictor {
@@ -429,6 +519,7 @@ impl CurvatureModel {
                 Regressor::Ridge(_) => None,
             },
             scratch: Vec::with_capacity(self.n_nodes),
+            sig: Vec::with_capacity(self.n_nodes),
             feat: vec![0.0; n_features(self.n_nodes)],
         }
     }
@@ -448,6 +539,7 @@ pub struct Predictor<'a> {
     model: &'a CurvatureModel,
     mlp: Option<MlpF32>,
     scratch: Vec<f64>,
+    sig: Vec<f64>,
     feat: Vec<f64>,
 }
 
@@ -455,7 +547,8 @@ impl Predictor<'_> {
     /// Curvature from a baseline of `n_nodes` readings.
     pub fn predict(&mut self, baseline: &[f64]) -> Prediction {
         let m = self.model;
-        raw_features(baseline, &mut self.scratch, &mut self.feat);
+        signal_of(m.readout.as_ref(), baseline, &mut self.sig);
+        raw_features(&self.sig, &mut self.scratch, &mut self.feat);
         m.standardizer.apply(&mut self.feat);
         let (y, extra_var) = match (&m.regressor, self.mlp.as_mut()) {
             (Regressor::Ridge(r), _) => (r.predict(&self.feat), r.leverage(&self.feat)),

@@ -31,6 +31,8 @@ pub struct SerialConfig {
     pub max_count: u16,
     /// No valid frame for this long while connected: the device is stalled (s).
     pub stall_s: f64,
+    /// The readout declared in every frame's flags (`Readout::code`; the paper's board: 1).
+    pub readout_code: u32,
 }
 
 /// Counters of a serial run.
@@ -302,7 +304,10 @@ pub fn run(
             if stats.frames > 0 {
                 frame.seq += 1 + lost;
             }
-            frame.flags = if gap { raw_flags::GAP_BEFORE } else { 0 };
+            frame.flags = raw_flags::with_readout_code(
+                if gap { raw_flags::GAP_BEFORE } else { 0 },
+                cfg.readout_code,
+            );
             gap = false;
             if frame.counts[..n].iter().any(|&c| c >= cfg.max_count as f32) {
                 frame.flags |= raw_flags::RAIL;
