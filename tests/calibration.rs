@@ -155,12 +155,13 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
         if let Record::Force {
             seq,
             flags,
+            total_force_n,
             block_force_n,
             ..
         } = r
         {
             if flags & taxel_msgs::force_flags::NO_BASELINE == 0 {
-                live.insert(seq, block_force_n[0]);
+                live.insert(seq, (total_force_n, block_force_n[0]));
             }
         }
     }
@@ -170,10 +171,15 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
         live.len(),
         rec.len()
     );
+    // The whole array is the headline; the central block is scored beside it.
+    assert_eq!(report.blocks.len(), 2);
+    let (array, center) = (&report.blocks[0].forces, &report.blocks[1].forces);
+    assert_eq!(report.headline, taxel_calibrator::evaluate::Headline::Array);
     let mut compared = 0;
-    for (seq, f) in &live {
-        let offline = report.forces[*seq as usize].0;
-        assert_eq!(*f, offline, "frame {seq}: live {f} N, offline {offline} N");
+    for (seq, (total, block)) in &live {
+        let (a, c) = (array[*seq as usize].0, center[*seq as usize].0);
+        assert_eq!(*total, a, "frame {seq}: live array {total} N, offline {a} N");
+        assert_eq!(*block, c, "frame {seq}: live block {block} N, offline {c} N");
         compared += 1;
     }
     assert!(compared > 1000);
