@@ -26,6 +26,29 @@ pub enum Evaluate {
         #[arg(long, default_value_t = 1001)]
         build_seed: u64,
     },
+    /// The generalisation check: the whole offline pipeline (curvature model trained,
+    /// calibrations fitted, objects evaluated) on every simulator family with hold-out seeds,
+    /// on world B and on the real recordings; every number per family (worlds.md, worlds.json).
+    Worlds {
+        /// Output directory.
+        #[arg(long, default_value = "worlds")]
+        out: PathBuf,
+        /// Simulator families (taxel-sim presets), comma separated.
+        #[arg(long, value_delimiter = ',', default_values_t = taxel_calibrator::worlds::FAMILIES.map(String::from))]
+        families: Vec<String>,
+        /// Seeds of each family (default: the hold-out seeds, never tuned on), comma separated.
+        #[arg(long, value_delimiter = ',', default_values_t = taxel_calibrator::worlds::HOLDOUT_SEEDS)]
+        seeds: Vec<u64>,
+        /// Folder holding worldb/ and real/ (skipped with a note when absent).
+        #[arg(long, default_value = "../shared/data")]
+        shared: PathBuf,
+        /// Training epochs of the curvature MLP (the paper: 500).
+        #[arg(long, default_value_t = 500)]
+        epochs: usize,
+        /// Print exactly one JSON object on stdout instead of the Markdown table.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 pub fn main(e: Evaluate) -> ExitCode {
@@ -43,12 +66,70 @@ pub fn main(e: Evaluate) -> ExitCode {
 }
 
 fn run(e: Evaluate) -> anyhow::Result<()> {
-    let Evaluate::Table1 {
-        out,
-        seed,
-        curvature_model,
-        build_seed,
-    } = e;
+    match e {
+        Evaluate::Table1 {
+            out,
+            seed,
+            curvature_model,
+            build_seed,
+        } => table1(out, seed, curvature_model, build_seed),
+        Evaluate::Worlds {
+            out,
+            families,
+            seeds,
+            shared,
+            epochs,
+            json,
+        } => worlds(
+            taxel_calibrator::worlds::Options {
+                out,
+                families,
+                seeds,
+                shared: Some(shared),
+                epochs,
+            },
+            json,
+        ),
+    }
+}
+
+fn worlds(o: taxel_calibrator::worlds::Options, json: bool) -> anyhow::Result<()> {
+    use taxel_calibrator::worlds;
+    let command = std::env::args().collect::<Vec<_>>().join(" ");
+    let mut bar = taxel_runtime::progress::Progress::new("worlds", 1);
+    let t0 = std::time::Instant::now();
+    let s = worlds::run(&o, |done, total, what| {
+        bar.set_total(total as u64);
+        bar.set(done as u64);
+        tracing::info!("worlds: {what} ({:.0} s)", t0.elapsed().as_secs_f64());
+    })?;
+    bar.finish();
+    let md = worlds::markdown(&s, &command);
+    let js = worlds::json(&s);
+    for (name, text) in [("worlds.md", &md), ("worlds.json", &js)] {
+        let p = o.out.join(name);
+        std::fs::write(&p, format!("{text}\n"))
+            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+    }
+    if json {
+        println!("{js}");
+    } else {
+        println!("{md}");
+        println!(
+            "done in {:.0} s; report: {}",
+            t0.elapsed().as_secs_f64(),
+            o.out.join("worlds.md").display()
+        );
+    }
+    Ok(())
+}
+
+fn table1(
+    out: PathBuf,
+    seed: u64,
+    curvature_model: Option<PathBuf>,
+    build_seed: u64,
+) -> anyhow::Result<()> {
     let model = match &curvature_model {
         Some(p) => taxel_estimator::model::CurvatureModel::load(p)?,
         None => {

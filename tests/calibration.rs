@@ -178,8 +178,14 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
     let mut compared = 0;
     for (seq, (total, block)) in &live {
         let (a, c) = (array[*seq as usize].0, center[*seq as usize].0);
-        assert_eq!(*total, a, "frame {seq}: live array {total} N, offline {a} N");
-        assert_eq!(*block, c, "frame {seq}: live block {block} N, offline {c} N");
+        assert_eq!(
+            *total, a,
+            "frame {seq}: live array {total} N, offline {a} N"
+        );
+        assert_eq!(
+            *block, c,
+            "frame {seq}: live block {block} N, offline {c} N"
+        );
         compared += 1;
     }
     assert!(compared > 1000);

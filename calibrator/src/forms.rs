@@ -129,6 +129,15 @@ fn monotone(cs: &[f64], f: &[f64], rows: &[f64], s: f64, c: f64) -> (f64, f64) {
 }
 
 impl Model {
+    /// The form's name as in the calibration file (`poly`, `physics`, `monotone`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Model::Poly(_) => "poly",
+            Model::Physics { .. } => "physics",
+            Model::Monotone { .. } => "monotone",
+        }
+    }
+
     /// Force without range handling.
     #[inline]
     pub fn value(&self, s: f64, c: f64) -> f64 {

@@ -12,6 +12,7 @@ pub mod plots;
 pub mod reload;
 pub mod run;
 pub mod table1;
+pub mod worlds;
 
 /// Nodes of the central 2 x 2 block (the paper's indenter), or of the whole array when it is
 /// smaller, row-major.

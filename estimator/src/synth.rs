@@ -37,7 +37,9 @@ pub fn build_seed(seed: u64, index: usize) -> u64 {
 /// Dataset shape.
 #[derive(Debug, Clone)]
 pub struct Spec {
-    pub world: World,
+    /// The taxel-sim preset drawn from (see [`World::preset`]; any name of
+    /// `taxel_sim::presets::NAMES`).
+    pub preset: String,
     pub sensors: usize,
     pub curvatures_m1: Vec<f64>,
     pub baselines: usize,
@@ -54,7 +56,7 @@ impl Spec {
     /// The paper's shape: 3 sensors x 10 fixtures (0-80 1/m) x 10 baselines of 100 frames.
     pub fn paper(world: World, seed: u64) -> Spec {
         Spec {
-            world,
+            preset: world.preset().to_string(),
             sensors: 3,
             curvatures_m1: (0..10).map(|i| 80.0 * i as f64 / 9.0).collect(),
             baselines: 10,
@@ -73,8 +75,8 @@ pub fn generate(
     mut progress: impl FnMut(usize, usize),
 ) -> anyhow::Result<Vec<PathBuf>> {
     std::fs::create_dir_all(dir)?;
-    let mut model = taxel_sim::presets::preset(spec.world.preset())
-        .ok_or_else(|| anyhow::anyhow!("unknown preset {}", spec.world.preset()))?;
+    let mut model = taxel_sim::presets::preset(&spec.preset)
+        .ok_or_else(|| anyhow::anyhow!("unknown sensor-model preset {:?}", spec.preset))?;
     let n = model.rows * model.cols;
     let mut paths = Vec::new();
     let per_sensor = spec.curvatures_m1.len() * spec.baselines;

@@ -370,6 +370,24 @@ impl Recording {
         Some(0.02f64.max(0.01 * max))
     }
 
+    /// Rows `range` (clamped to the recording) as a recording of their own, with the same
+    /// path (for messages) and columns.
+    pub fn slice(&self, range: std::ops::Range<usize>) -> Recording {
+        let end = range.end.min(self.len());
+        let r = range.start.min(end)..end;
+        let cut = |v: &Option<Vec<f64>>| v.as_ref().map(|v| v[r.clone()].to_vec());
+        Recording {
+            path: self.path.clone(),
+            n_nodes: self.n_nodes,
+            t_s: self.t_s[r.clone()].to_vec(),
+            nodes: self.nodes[r.start * self.n_nodes..r.end * self.n_nodes].to_vec(),
+            force_n: cut(&self.force_n),
+            curvature_m1: cut(&self.curvature_m1),
+            temp_c: cut(&self.temp_c),
+            trial: self.trial.as_ref().map(|v| v[r.clone()].to_vec()),
+        }
+    }
+
     /// rows x cols for this recording (see [`Geometry::resolve`]).
     pub fn geometry(&self, rows: Option<usize>, cols: Option<usize>) -> Result<Geometry, CsvError> {
         Geometry::resolve(self.n_nodes, rows, cols).map_err(|reason| CsvError::Geometry {
@@ -559,6 +577,21 @@ mod tests {
             r.geometry(None, None).expect("square"),
             Geometry { rows: 2, cols: 2 }
         );
+    }
+
+    #[test]
+    fn slice_keeps_rows_and_columns_together() {
+        let r = parse("t_s,n0,n1,force_n,trial\n0,1,2,0.5,1\n1,3,4,1.5,1\n2,5,6,2.5,2\n")
+            .expect("parses");
+        let s = r.slice(1..9);
+        assert_eq!(s.len(), 2);
+        assert_eq!(s.t_s, vec![1.0, 2.0]);
+        assert_eq!(s.sample(0), &[3.0, 4.0]);
+        assert_eq!(s.sample(1), &[5.0, 6.0]);
+        assert_eq!(s.force_n, Some(vec![1.5, 2.5]));
+        assert_eq!(s.trial, Some(vec![1, 2]));
+        assert_eq!(s.temp_c, None);
+        assert!(r.slice(3..3).is_empty());
     }
 
     #[test]

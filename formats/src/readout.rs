@@ -290,23 +290,31 @@ impl ValueShape {
     }
 }
 
-/// The direction of the readings with force: the mean summed reading of the top force quartile
-/// against the bottom one. None without a usable force column (no spread in force).
+/// The direction of the readings with force: the mean summed reading of the frames loaded to at
+/// least half the force range against the frames within a tenth of its bottom (the range from
+/// the 5th to the 99th percentile of force, so that neither a few spikes nor a recording that
+/// is mostly unloaded decide it). None without a usable force column (no spread in force).
 pub fn direction(sums: &[f64], force: &[f64]) -> Option<Direction> {
     let n = sums.len().min(force.len());
     if n < 8 {
         return None;
     }
-    let mut order: Vec<usize> = (0..n).collect();
-    order.sort_by(|&a, &b| force[a].total_cmp(&force[b]));
-    let q = n / 4;
-    let lo_f = force[order[q]];
-    let hi_f = force[order[n - 1 - q]];
-    if hi_f - lo_f <= 1e-9 {
+    let mut sorted: Vec<f64> = force[..n].to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let lo_f = sorted[n / 20];
+    let hi_f = sorted[(n * 99 / 100).min(n - 1)];
+    let span = hi_f - lo_f;
+    if span.is_nan() || span <= 1e-9 {
         return None;
     }
-    let low: f64 = order[..q].iter().map(|&i| sums[i]).sum::<f64>() / q as f64;
-    let high: f64 = order[n - q..].iter().map(|&i| sums[i]).sum::<f64>() / q as f64;
+    let mean_where = |keep: &dyn Fn(f64) -> bool| {
+        let (s, k) = (0..n)
+            .filter(|&i| keep(force[i]))
+            .fold((0.0, 0usize), |a, i| (a.0 + sums[i], a.1 + 1));
+        (k > 0).then(|| s / k as f64)
+    };
+    let low = mean_where(&|f| f <= lo_f + 0.1 * span)?;
+    let high = mean_where(&|f| f >= lo_f + 0.5 * span)?;
     if high == low {
         return None;
     }
@@ -465,5 +473,29 @@ mod tests {
         let falling: Vec<f64> = f.iter().map(|x| 100.0 - x).collect();
         assert_eq!(direction(&falling, &f), Some(Direction::Falls));
         assert_eq!(direction(&falling, &[1.0; 8]), None);
+        // Mostly unloaded (90 % of frames at rest, with load-cell noise): still told apart.
+        let force: Vec<f64> = (0..1000)
+            .map(|i| {
+                if i % 10 == 0 {
+                    5.0 + (i % 7) as f64
+                } else {
+                    0.001 * (i % 5) as f64
+                }
+            })
+            .collect();
+        // At rest the reading drifts up with the load cell's noise; only the presses tell.
+        let ohms: Vec<f64> = force
+            .iter()
+            .map(|f| {
+                if *f < 1.0 {
+                    900.0 + 1e4 * f
+                } else {
+                    900.0 / (1.0 + f)
+                }
+            })
+            .collect();
+        assert_eq!(direction(&ohms, &force), Some(Direction::Falls));
+        let codes: Vec<f64> = ohms.iter().map(|r| 4095.0 - r).collect();
+        assert_eq!(direction(&codes, &force), Some(Direction::Rises));
     }
 }
