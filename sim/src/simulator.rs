@@ -2,7 +2,9 @@
 //! (static law, spread, curvature, effect layers), the readout and the ADC. Pure and seeded:
 //! the same model, scenario and seed give identical frames.
 
+use crate::forms;
 use crate::model::{ReadoutKind, SensorModel};
+use crate::noise::NoiseLayers;
 use crate::rng::Rng;
 use crate::scenario::{Contact, Mounting, Scenario, Timeline, Tremor};
 use crate::SimError;
@@ -12,6 +14,12 @@ const STREAM_SPREAD: u64 = 1;
 const STREAM_NOISE: u64 = 2;
 const STREAM_TREMOR: u64 = 3;
 const STREAM_CROSSTALK: u64 = 4;
+/// The zoo's draws: per-node law shape factors (per build), contact jitter (per press), wander
+/// and spikes (per frame).
+const STREAM_SHAPE: u64 = 5;
+const STREAM_JITTER: u64 = 6;
+const STREAM_WANDER: u64 = 7;
+const STREAM_SPIKE: u64 = 8;
 /// Per-trial mounting scatter uses streams STREAM_MOUNT + trial.
 const STREAM_MOUNT: u64 = 1000;
 
@@ -41,13 +49,23 @@ pub struct Simulator {
     seed: u64,
     node_gain: Vec<f64>,
     node_g0: Vec<f64>,
+    /// Per-node factor of the law's shape parameter (1 without `spread.node_exponent_log_sd`).
+    node_shape: Vec<f64>,
     vos_v: Vec<f64>,
     noise: Rng,
     tremor: Option<(Tremor, f64, f64)>,
     creep: Vec<f64>,
     hyst: Vec<f64>,
     t_sensor_c: Option<f64>,
-    contact: Option<(Contact, Vec<f64>)>,
+    /// Current contact, its jitter displacement (rows, cols) and the node weights.
+    contact: Option<(Contact, (f64, f64), Vec<f64>)>,
+    /// Contact jitter: its draws, the displacement of the current press, and whether the
+    /// scripted force was on at the previous frame (a press starts when it comes on).
+    jitter: Rng,
+    jitter_offset: (f64, f64),
+    pressing: bool,
+    /// Wander and spikes.
+    layers: NoiseLayers,
     /// Current mounting, its trial, the per-node baseline factors and the effective curvature.
     mounting: Option<(Mounting, u32, Vec<f64>, f64)>,
     g_s: Vec<f64>,
@@ -59,7 +77,7 @@ pub struct Simulator {
 }
 
 /// Position across the bend, in (-1, 1), of each node for a mounting.
-fn across_bend(rows: usize, cols: usize, m: &Mounting) -> Vec<f64> {
+fn across_bend(rows: usize, cols: usize, m: &Mounting, any_angle: bool) -> Vec<f64> {
     let mut u = Vec::with_capacity(rows * cols);
     for i in 0..rows {
         for j in 0..cols {
@@ -68,12 +86,7 @@ fn across_bend(rows: usize, cols: usize, m: &Mounting) -> Vec<f64> {
             if m.flipped {
                 x = -x;
             }
-            u.push(match m.rotation_deg {
-                90 => y,
-                180 => -x,
-                270 => -y,
-                _ => x,
-            });
+            u.push(forms::across(x, y, m.rotation_deg, any_angle));
         }
     }
     u
@@ -83,7 +96,8 @@ impl Simulator {
     /// Builds a simulator; validates the model and compiles the scenario.
     pub fn new(model: &SensorModel, scenario: &Scenario) -> Result<Simulator, SimError> {
         model.validate()?;
-        let timeline = Timeline::compile(scenario, model.rows, model.cols)?;
+        let timeline =
+            Timeline::compile_with(scenario, model.rows, model.cols, model.curvature.any_angle)?;
         let n = model.rows * model.cols;
         let seed = scenario.seed;
         let mut spread = Rng::new(model.spread.build_seed.unwrap_or(seed), STREAM_SPREAD);
@@ -100,6 +114,14 @@ impl Simulator {
             node_gain.clone_from(&nf.gain);
             node_g0.clone_from(&nf.g0);
         }
+        let node_shape = if s.node_exponent_log_sd > 0.0 {
+            let mut r = Rng::new(model.spread.build_seed.unwrap_or(seed), STREAM_SHAPE);
+            (0..n)
+                .map(|_| (s.node_exponent_log_sd * r.normal()).exp())
+                .collect()
+        } else {
+            vec![1.0; n]
+        };
         let mut xt = Rng::new(model.spread.build_seed.unwrap_or(seed), STREAM_CROSSTALK);
         let vos_max = model.crosstalk.as_ref().map_or(0.0, |c| c.vos_max_v);
         let vos_v = (0..model.cols)
@@ -128,6 +150,7 @@ impl Simulator {
             seed,
             node_gain,
             node_g0,
+            node_shape,
             vos_v,
             noise: Rng::new(seed, STREAM_NOISE),
             tremor,
@@ -139,6 +162,10 @@ impl Simulator {
             hyst: vec![f64::NAN; n * hyst_terms],
             t_sensor_c: None,
             contact: None,
+            jitter: Rng::new(seed, STREAM_JITTER),
+            jitter_offset: (0.0, 0.0),
+            pressing: false,
+            layers: NoiseLayers::new(&model.noise, n, seed, STREAM_WANDER, STREAM_SPIKE),
             mounting: None,
             g_s: vec![0.0; n],
             vout_v: vec![0.0; n],
@@ -193,13 +220,13 @@ impl Simulator {
 
     /// Force-sensitivity factor at curvature `kappa` (1 when flat).
     pub fn sensitivity(&self, kappa_m1: f64) -> f64 {
-        1.0 / (1.0 + kappa_m1.max(0.0) / self.model.curvature.sensitivity_kappa_s_m1)
+        forms::sensitivity(&self.model.curvature, kappa_m1)
     }
 
     /// Unloaded-conductance factor of every node for a mounting (1 when flat).
     pub fn baseline_factors(&self, m: &Mounting) -> Vec<f64> {
         let c = &self.model.curvature;
-        let u = across_bend(self.model.rows, self.model.cols, m);
+        let u = across_bend(self.model.rows, self.model.cols, m, c.any_angle);
         let mean_u2 = u.iter().map(|x| x * x).sum::<f64>() / u.len() as f64;
         let g1 = if m.flipped {
             c.baseline_g1_flipped_m
@@ -210,7 +237,7 @@ impl Simulator {
         u.iter()
             .map(|&x| {
                 let shape = g1 + c.pattern_quad_m * (x * x - mean_u2) + c.pattern_lin_m * x;
-                (1.0 + k * shape + c.baseline_g2_m2 * k * k).max(0.05)
+                forms::baseline_factor(c, k, shape)
             })
             .collect()
     }
@@ -222,9 +249,26 @@ impl Simulator {
         self.frame += 1;
         let (mounting, trial) = self.timeline.mounting(t);
         let contact = self.timeline.contact(t);
-        if self.contact.as_ref().map(|c| c.0) != Some(contact) {
-            let w = contact.weights(self.model.rows, self.model.cols);
-            self.contact = Some((contact, w));
+        let cm = &self.model.contact;
+        let pressing = self.timeline.force_n(t) > 0.0;
+        if pressing && !self.pressing && cm.jitter_nodes > 0.0 {
+            // A new press lands somewhere else.
+            self.jitter_offset = (
+                cm.jitter_nodes * self.jitter.normal(),
+                cm.jitter_nodes * self.jitter.normal(),
+            );
+        }
+        self.pressing = pressing;
+        let offset = self.jitter_offset;
+        if self.contact.as_ref().map(|c| (c.0, c.1)) != Some((contact, offset)) {
+            let w = cm.weights(
+                &contact,
+                offset.0,
+                offset.1,
+                self.model.rows,
+                self.model.cols,
+            );
+            self.contact = Some((contact, offset, w));
         }
         let force_n = self.applied_force_n(t);
         let ambient = self.timeline.temp_c(t);
@@ -261,7 +305,7 @@ impl Simulator {
                 .as_ref()
                 .and_then(|nf| nf.load_share.clone())
                 .unwrap_or_else(|| vec![1.0; self.n]);
-            self.contact = Some((whole, weights));
+            self.contact = Some((whole, (0.0, 0.0), weights));
         }
         self.driven_force = Some(force_n);
         let mounting = Mounting {
@@ -339,7 +383,7 @@ impl Simulator {
         };
         let driven = self.driven_force.is_some();
         let (weights, base) = match (&self.contact, &self.mounting) {
-            (Some(c), Some(m)) => (&c.1, &m.2),
+            (Some(c), Some(m)) => (&c.2, &m.2),
             _ => return,
         };
         for k in 0..self.n {
@@ -393,9 +437,9 @@ impl Simulator {
                 }
                 f += extra;
             }
-            let load = f.max(0.0).powf(mat.exponent);
+            let (amplitude, load) = forms::force_term(mat, self.node_shape[k], f);
             let g_us = (mat.g0_us * self.node_g0[k] * base[k]
-                + self.node_gain[k] * mat.gain_us_per_n * sens * load)
+                + self.node_gain[k] * amplitude * sens * load)
                 * thermal;
             let g = (g_us * 1e-6).max(0.0);
             self.g_s[k] = g / (1.0 + g * mat.r_floor_ohm);
@@ -455,14 +499,22 @@ impl Simulator {
     fn quantize(&mut self, out: &mut [f32]) {
         let r = &self.model.readout;
         let max = r.max_code();
+        // Wander and spikes, in the reading's units (None when off: the reading is untouched).
+        let extra = self.layers.next(self.dt_s);
+        let add = |k: usize, v: &mut f64| {
+            if let Some(e) = extra {
+                *v += e[k];
+            }
+        };
         match r.kind {
             ReadoutKind::Amplifier => {}
             ReadoutKind::Resistance => {
-                for (o, &ohm) in out.iter_mut().zip(&self.vout_v) {
+                for (k, (o, &ohm)) in out.iter_mut().zip(&self.vout_v).enumerate() {
                     let mut v = ohm;
                     if r.noise_counts > 0.0 {
                         v += r.noise_counts * self.noise.normal();
                     }
+                    add(k, &mut v);
                     if r.resolution_ohm > 0.0 {
                         v = (v / r.resolution_ohm).round() * r.resolution_ohm;
                     }
@@ -471,21 +523,32 @@ impl Simulator {
                 return;
             }
             ReadoutKind::Divider => {
-                for (o, &ohm) in out.iter_mut().zip(&self.vout_v) {
-                    let mut code = max * ohm / (ohm + r.r_ref_ohm);
+                for (k, (o, &ohm)) in out.iter_mut().zip(&self.vout_v).enumerate() {
+                    let mut code = if r.divider_rises {
+                        max * r.r_ref_ohm / (ohm + r.r_ref_ohm)
+                    } else {
+                        max * ohm / (ohm + r.r_ref_ohm)
+                    };
                     if r.noise_counts > 0.0 {
                         code += r.noise_counts * self.noise.normal();
                     }
+                    add(k, &mut code);
                     *o = code.round().clamp(0.0, max) as f32;
                 }
                 return;
             }
         }
-        for (o, &v) in out.iter_mut().zip(&self.vout_v) {
+        for (k, (o, &v)) in out.iter_mut().zip(&self.vout_v).enumerate() {
             let clipped = v.clamp(0.0, r.vsat_v);
             let mut code = clipped / r.adc_ref_v * max;
             if v < r.vsat_v && r.noise_counts > 0.0 {
                 code += r.noise_counts * self.noise.normal();
+            }
+            if v < r.vsat_v {
+                add(k, &mut code);
+            }
+            if r.inverted {
+                code = max - code;
             }
             *o = code.round().clamp(0.0, max) as f32;
         }
@@ -497,3 +560,6 @@ mod tests;
 
 #[cfg(test)]
 mod driven_tests;
+
+#[cfg(test)]
+mod zoo_tests;
