@@ -181,6 +181,11 @@ fn zoo_pow_stays_in_range_and_loses_a_fifth_to_a_half_when_bent() {
 #[ignore]
 fn print_zoo_readings() {
     for name in ["zoo-log", "zoo-sat", "zoo-pow"] {
+        let [(b0, r0), (b80, r80)] = check(name);
+        println!(
+            "{name} (d): 10 N block {b0:.1} -> {b80:.1}, response {r0:.1} -> {r80:.1}, loss {:.1} %",
+            100.0 * (1.0 - r80 / r0)
+        );
         let m = presets::preset(name).expect("known");
         for c in [0.0, 80.0, 100.0] {
             let r = mount(&m, c, 0, false, 1);

@@ -466,3 +466,20 @@ mode = "per_node"
         assert!(!plain.contains(field), "{field} in\n{plain}");
     }
 }
+
+#[test]
+fn the_documented_zoo_example_is_a_valid_model() {
+    let doc = include_str!("../../../docs/sim.md");
+    let start = doc
+        .find("```toml\n[material]\nlaw = \"log\"")
+        .expect("zoo example in docs/sim.md")
+        + 8;
+    let end = start + doc[start..].find("```").expect("end of example");
+    let m = SensorModel::from_toml_str(&doc[start..end]).expect("documented example is valid");
+    assert_eq!(m.material.law, Law::Log);
+    assert_eq!(
+        m.noise.wander.as_ref().map(|w| w.mode),
+        Some(WanderMode::PerNode)
+    );
+    assert!(!frames(&m, &ramp(), 10).is_empty());
+}
