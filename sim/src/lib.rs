@@ -2,10 +2,15 @@
 //! layers of conductive thread, read by row-column scanning into a 10-bit ADC. It holds the
 //! parameterised sensor model (static law, part-to-part spread, curvature effects and the
 //! switchable effect layers: creep, hysteresis, thermal drift, crosstalk, scan skew), scripted
-//! scenarios, and the seeded frame generator. It is pure: no I/O, no clock, no threads; the same
+//! scenarios, and the seeded frame generator. Optional functional-form families (the zoo:
+//! other static laws, curvature forms, contact footprints, wander and spikes, readouts) make
+//! worlds whose laws differ from the default. It is pure: no I/O, no clock, no threads; the same
 //! model, scenario and seed always give the same frames. See docs/sim.md for every parameter.
 
+pub mod footprint;
+pub mod forms;
 pub mod model;
+pub mod noise;
 pub mod presets;
 pub mod rng;
 pub mod scenario;

@@ -4,7 +4,39 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::footprint::ContactModel;
+use crate::forms::{BaselineForm, Law, SensitivityForm};
+use crate::noise::NoiseModel;
 use crate::SimError;
+
+/// Defaults of the zoo's parameters, and the predicates that leave them out of the TOML when
+/// they hold (so a model without the zoo serializes as before).
+macro_rules! zoo_default {
+    ($($name:ident: $is:ident = $v:expr;)*) => {
+        $(
+            const $name: f64 = $v;
+            fn $is(v: &f64) -> bool {
+                *v == $name
+            }
+        )*
+    };
+}
+
+zoo_default! {
+    LOG_GAIN_US: is_log_gain_default = 400.0;
+    LOG_F0_N: is_log_f0_default = 0.5;
+    HYPERBOLIC_GMAX_US: is_gmax_default = 1500.0;
+    HYPERBOLIC_HALF_N: is_half_default = 5.0;
+    SENS_C0_M1: is_c0_default = 120.0;
+    SENS_EXPONENT: is_sens_exponent_default = 1.0;
+    SENS_CMAX_M1: is_cmax_default = 200.0;
+    SENS_CE_M1: is_ce_default = 150.0;
+    BASELINE_CB_M1: is_cb_default = 60.0;
+}
+
+fn is_false(v: &bool) -> bool {
+    !*v
+}
 
 /// What the board reports for each crossing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -17,7 +49,8 @@ pub enum ReadoutKind {
     /// The crossing's resistance in ohms (`1 / G`), as boards that log a divider ratio times a
     /// reference resistor do; the reading falls with force. Rounded to `resolution_ohm`.
     Resistance,
-    /// A voltage divider into the ADC: `code = max_code R / (R + r_ref_ohm)`; falls with force.
+    /// A voltage divider into the ADC: `code = max_code R / (R + r_ref_ohm)`; falls with force
+    /// (or `max_code r_ref_ohm / (R + r_ref_ohm)`, rising, with `divider_rises`).
     Divider,
 }
 
@@ -46,6 +79,14 @@ pub struct Readout {
     /// White noise on each reading, one standard deviation (ADC counts, or ohms for
     /// `resistance`), before quantization.
     pub noise_counts: f64,
+    /// `divider` only: the crossing sits on the low side of the divider, `code = max_code
+    /// r_ref_ohm / (R + r_ref_ohm)`, so the reading rises with force (default false: falls).
+    #[serde(skip_serializing_if = "is_false")]
+    pub divider_rises: bool,
+    /// `amplifier` only: an inverting front end, `reading = max_code - amplifier reading`
+    /// (noise included, floored at 0), so the reading falls with force (default false).
+    #[serde(skip_serializing_if = "is_false")]
+    pub inverted: bool,
 }
 
 impl Default for Readout {
@@ -60,6 +101,8 @@ impl Default for Readout {
             adc_ref_v: 5.0,
             adc_bits: 10,
             noise_counts: 0.5,
+            divider_rises: false,
+            inverted: false,
         }
     }
 }
@@ -71,8 +114,8 @@ impl Readout {
     }
 }
 
-/// The Velostat crossing's static law: `G = G0 + a F^n`, saturated by a series resistance
-/// floor `G_sat = G / (1 + G R_floor)`.
+/// The Velostat crossing's static law: `G = G0 + a F^n` (or another `law`, see
+/// [`Law`]), saturated by a series resistance floor `G_sat = G / (1 + G R_floor)`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Material {
@@ -84,6 +127,22 @@ pub struct Material {
     pub exponent: f64,
     /// Resistance floor that saturates the crossing at high force (ohm).
     pub r_floor_ohm: f64,
+    /// Shape of the force term: `power` (default, `a F^n`), `log` (`k ln(1 + F / F0)`) or
+    /// `hyperbolic` (`gmax F / (F + Fh)`).
+    #[serde(skip_serializing_if = "Law::is_power")]
+    pub law: Law,
+    /// `log` law: the gain `k` (microsiemens per unit of `ln(1 + F / F0)`).
+    #[serde(skip_serializing_if = "is_log_gain_default")]
+    pub log_gain_us: f64,
+    /// `log` law: the force scale `F0` (N) at which the rise turns from linear to logarithmic.
+    #[serde(skip_serializing_if = "is_log_f0_default")]
+    pub log_f0_n: f64,
+    /// `hyperbolic` law: the conductance `gmax` approached at high force (microsiemens).
+    #[serde(skip_serializing_if = "is_gmax_default")]
+    pub hyperbolic_gmax_us: f64,
+    /// `hyperbolic` law: the force `Fh` at which the force term reaches half of `gmax` (N).
+    #[serde(skip_serializing_if = "is_half_default")]
+    pub hyperbolic_half_n: f64,
 }
 
 impl Default for Material {
@@ -93,6 +152,11 @@ impl Default for Material {
             gain_us_per_n: 150.0,
             exponent: 1.0,
             r_floor_ohm: 400.0,
+            law: Law::Power,
+            log_gain_us: LOG_GAIN_US,
+            log_f0_n: LOG_F0_N,
+            hyperbolic_gmax_us: HYPERBOLIC_GMAX_US,
+            hyperbolic_half_n: HYPERBOLIC_HALF_N,
         }
     }
 }
@@ -114,6 +178,11 @@ pub struct Spread {
     /// scenario's seed is used, so every scenario seed is another sensor.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub build_seed: Option<u64>,
+    /// Per-crossing spread of the law's shape parameter (log sd, drawn once per build like the
+    /// others): the exponent `n` of `power`, `F0` of `log`, `Fh` of `hyperbolic` is multiplied
+    /// by the node's lognormal factor. 0 (default) = none.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub node_exponent_log_sd: f64,
 }
 
 impl Default for Spread {
@@ -124,6 +193,7 @@ impl Default for Spread {
             build_gain_log_sd: 0.0,
             build_g0_log_sd: 0.0,
             build_seed: None,
+            node_exponent_log_sd: 0.0,
         }
     }
 }
@@ -133,7 +203,8 @@ impl Default for Spread {
 /// `G0 (1 + kappa (g1 + q p2(u) + l u) + g2 kappa^2)`, where `u` in (-1, 1) is the crossing's
 /// position across the bend (which sensor axis that is, and its sign, follow the sensor's rotation
 /// and flip) and `p2(u) = u^2 - mean(u^2)`. `g1` differs between face-up and flipped mounting
-/// because the two thread layers are not symmetric.
+/// because the two thread layers are not symmetric. `sensitivity_form` and `baseline_form`
+/// select other shapes of the two (see [`SensitivityForm`] and [`BaselineForm`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Curvature {
@@ -154,6 +225,34 @@ pub struct Curvature {
     pub mount_curvature_scatter: f64,
     /// Per-node baseline scatter at each mounting (log sd): tape tension, thread seating.
     pub mount_baseline_log_sd: f64,
+    /// Shape of the sensitivity's fall: `current` (default, `1 / (1 + kappa / kappa_s)`),
+    /// `hyperbolic`, `linear` or `exponential`.
+    #[serde(skip_serializing_if = "SensitivityForm::is_current")]
+    pub sensitivity_form: SensitivityForm,
+    /// `hyperbolic` sensitivity: the curvature `C0` at which it has halved (1/m).
+    #[serde(skip_serializing_if = "is_c0_default")]
+    pub sensitivity_c0_m1: f64,
+    /// `hyperbolic` sensitivity: the exponent `p` of `1 / (1 + (kappa / C0)^p)`
+    /// (dimensionless, 0.2..=5; 1 = the shape of `current`).
+    #[serde(skip_serializing_if = "is_sens_exponent_default")]
+    pub sensitivity_exponent: f64,
+    /// `linear` sensitivity: the curvature `Cmax` at which `1 - kappa / Cmax` would reach 0
+    /// (1/m); the factor is floored at 0.1.
+    #[serde(skip_serializing_if = "is_cmax_default")]
+    pub sensitivity_cmax_m1: f64,
+    /// `exponential` sensitivity: the curvature `Ce` of `exp(-kappa / Ce)` (1/m).
+    #[serde(skip_serializing_if = "is_ce_default")]
+    pub sensitivity_ce_m1: f64,
+    /// Shape of the baseline's rise: `polynomial` (default) or `exponential`.
+    #[serde(skip_serializing_if = "BaselineForm::is_polynomial")]
+    pub baseline_form: BaselineForm,
+    /// `exponential` baseline: the curvature `Cb` above which the rise levels off (1/m).
+    #[serde(skip_serializing_if = "is_cb_default")]
+    pub baseline_cb_m1: f64,
+    /// Accept mountings at any whole-degree rotation 0..360 (default false: 0, 90, 180, 270);
+    /// the across-bend position then turns continuously, `u = x cos(rot) + y sin(rot)`.
+    #[serde(skip_serializing_if = "is_false")]
+    pub any_angle: bool,
 }
 
 impl Default for Curvature {
@@ -167,6 +266,14 @@ impl Default for Curvature {
             pattern_lin_m: 0.002,
             mount_curvature_scatter: 0.0,
             mount_baseline_log_sd: 0.0,
+            sensitivity_form: SensitivityForm::Current,
+            sensitivity_c0_m1: SENS_C0_M1,
+            sensitivity_exponent: SENS_EXPONENT,
+            sensitivity_cmax_m1: SENS_CMAX_M1,
+            sensitivity_ce_m1: SENS_CE_M1,
+            baseline_form: BaselineForm::Polynomial,
+            baseline_cb_m1: BASELINE_CB_M1,
+            any_angle: false,
         }
     }
 }
@@ -340,6 +447,12 @@ pub struct SensorModel {
     pub thermal_drift: Option<ThermalDrift>,
     pub crosstalk: Option<Crosstalk>,
     pub scan_skew: Option<ScanSkew>,
+    /// How the indenter's force spreads over the crossings (default: the scenario's rectangle).
+    #[serde(skip_serializing_if = "ContactModel::is_default")]
+    pub contact: ContactModel,
+    /// Wander and spikes on the reading (default: none).
+    #[serde(skip_serializing_if = "NoiseModel::is_default")]
+    pub noise: NoiseModel,
 }
 
 impl Default for SensorModel {
@@ -357,6 +470,8 @@ impl Default for SensorModel {
             thermal_drift: None,
             crosstalk: None,
             scan_skew: None,
+            contact: ContactModel::default(),
+            noise: NoiseModel::default(),
         }
     }
 }
@@ -442,6 +557,7 @@ impl SensorModel {
             finite_nonneg(r.resolution_ohm),
             "readout.resolution_ohm must be >= 0",
         )?;
+        self.validate_zoo()?;
         if let Some(nf) = &self.nodes {
             let n = self.rows * self.cols;
             check(
@@ -564,5 +680,55 @@ impl SensorModel {
             )?;
         }
         Ok(())
+    }
+
+    /// Checks the parameters of the functional-form families (the zoo).
+    fn validate_zoo(&self) -> Result<(), SimError> {
+        let r = &self.readout;
+        check(
+            !r.divider_rises || r.kind == crate::ReadoutKind::Divider,
+            "readout.divider_rises needs readout.kind = \"divider\"",
+        )?;
+        check(
+            !r.inverted || r.kind == crate::ReadoutKind::Amplifier,
+            "readout.inverted needs readout.kind = \"amplifier\"",
+        )?;
+        let m = &self.material;
+        check(
+            finite_nonneg(m.log_gain_us),
+            "material.log_gain_us must be >= 0",
+        )?;
+        check(
+            m.log_f0_n.is_finite() && m.log_f0_n > 0.0,
+            "material.log_f0_n must be > 0",
+        )?;
+        check(
+            finite_nonneg(m.hyperbolic_gmax_us),
+            "material.hyperbolic_gmax_us must be >= 0",
+        )?;
+        check(
+            m.hyperbolic_half_n.is_finite() && m.hyperbolic_half_n > 0.0,
+            "material.hyperbolic_half_n must be > 0",
+        )?;
+        check(
+            finite_nonneg(self.spread.node_exponent_log_sd)
+                && self.spread.node_exponent_log_sd <= 1.0,
+            "spread.node_exponent_log_sd must be in 0..=1",
+        )?;
+        let c = &self.curvature;
+        for (v, name) in [
+            (c.sensitivity_c0_m1, "curvature.sensitivity_c0_m1"),
+            (c.sensitivity_cmax_m1, "curvature.sensitivity_cmax_m1"),
+            (c.sensitivity_ce_m1, "curvature.sensitivity_ce_m1"),
+            (c.baseline_cb_m1, "curvature.baseline_cb_m1"),
+        ] {
+            check(v.is_finite() && v > 0.0, &format!("{name} must be > 0"))?;
+        }
+        check(
+            c.sensitivity_exponent.is_finite() && (0.2..=5.0).contains(&c.sensitivity_exponent),
+            "curvature.sensitivity_exponent must be in 0.2..=5",
+        )?;
+        self.contact.validate()?;
+        self.noise.validate()
     }
 }

@@ -7,13 +7,15 @@ use serde::{Deserialize, Serialize};
 use crate::SimError;
 
 /// How the sensor is mounted: on a cylinder of curvature `curvature_m1`, rotated by a multiple
-/// of 90 degrees and possibly flipped face down.
+/// of 90 degrees (any whole degree when the model sets `curvature.any_angle`) and possibly
+/// flipped face down.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Mounting {
     /// Curvature of the mounting surface (1/m); 0 is flat.
     pub curvature_m1: f64,
-    /// Rotation of the sensor on the surface: 0, 90, 180 or 270 degrees.
+    /// Rotation of the sensor on the surface: 0, 90, 180 or 270 degrees (0..360 with the
+    /// model's `curvature.any_angle`).
     pub rotation_deg: u32,
     /// Mounted face down.
     pub flipped: bool,
@@ -280,16 +282,24 @@ fn nonneg(x: f64, what: &str, i: usize) -> Result<f64, SimError> {
     }
 }
 
-fn check_mounting(m: &Mounting, where_: &str) -> Result<(), SimError> {
+fn check_mounting(m: &Mounting, where_: &str, any_angle: bool) -> Result<(), SimError> {
     if !m.curvature_m1.is_finite() || m.curvature_m1 < 0.0 || m.curvature_m1 > 1000.0 {
         return Err(SimError::Invalid(format!(
             "{where_}: curvature_m1 must be in 0..=1000, got {}",
             m.curvature_m1
         )));
     }
-    if !matches!(m.rotation_deg, 0 | 90 | 180 | 270) {
+    if any_angle {
+        if m.rotation_deg >= 360 {
+            return Err(SimError::Invalid(format!(
+                "{where_}: rotation_deg must be 0..360 (curvature.any_angle), got {}",
+                m.rotation_deg
+            )));
+        }
+    } else if !matches!(m.rotation_deg, 0 | 90 | 180 | 270) {
         return Err(SimError::Invalid(format!(
-            "{where_}: rotation_deg must be 0, 90, 180 or 270, got {}",
+            "{where_}: rotation_deg must be 0, 90, 180 or 270 (any whole degree with \
+             curvature.any_angle), got {}",
             m.rotation_deg
         )));
     }
@@ -314,6 +324,17 @@ fn check_contact(c: &Contact, where_: &str) -> Result<(), SimError> {
 impl Timeline {
     /// Compiles and validates a scenario for an array of `rows x cols`.
     pub fn compile(s: &Scenario, rows: usize, cols: usize) -> Result<Timeline, SimError> {
+        Timeline::compile_with(s, rows, cols, false)
+    }
+
+    /// As [`Timeline::compile`]; with `any_angle` a mounting may have any rotation 0..360
+    /// degrees (the model's `curvature.any_angle`).
+    pub fn compile_with(
+        s: &Scenario,
+        rows: usize,
+        cols: usize,
+        any_angle: bool,
+    ) -> Result<Timeline, SimError> {
         if !(s.rate_hz.is_finite() && s.rate_hz > 0.0 && s.rate_hz <= 100_000.0) {
             return Err(SimError::Invalid(format!(
                 "rate_hz must be in (0, 100000], got {}",
@@ -323,7 +344,7 @@ impl Timeline {
         if !s.temp_c.is_finite() {
             return Err(SimError::Invalid("temp_c must be finite".into()));
         }
-        check_mounting(&s.mounting, "mounting")?;
+        check_mounting(&s.mounting, "mounting", any_angle)?;
         let contact0 = s.contact.unwrap_or_else(|| Contact::central(rows, cols));
         check_contact(&contact0, "contact")?;
         let mut t = 0.0;
@@ -383,7 +404,7 @@ impl Timeline {
                             i + 1
                         )));
                     }
-                    check_mounting(mounting, &format!("step {}", i + 1))?;
+                    check_mounting(mounting, &format!("step {}", i + 1), any_angle)?;
                     mounts.push((t, *mounting));
                     t += nonneg(*rest_s, "rest_s", i)?;
                 }

@@ -2,7 +2,9 @@
 //! (static law, spread, curvature, effect layers), the readout and the ADC. Pure and seeded:
 //! the same model, scenario and seed give identical frames.
 
+use crate::forms;
 use crate::model::{ReadoutKind, SensorModel};
+use crate::noise::NoiseLayers;
 use crate::rng::Rng;
 use crate::scenario::{Contact, Mounting, Scenario, Timeline, Tremor};
 use crate::SimError;
@@ -12,6 +14,12 @@ const STREAM_SPREAD: u64 = 1;
 const STREAM_NOISE: u64 = 2;
 const STREAM_TREMOR: u64 = 3;
 const STREAM_CROSSTALK: u64 = 4;
+/// The zoo's draws: per-node law shape factors (per build), contact jitter (per press), wander
+/// and spikes (per frame).
+const STREAM_SHAPE: u64 = 5;
+const STREAM_JITTER: u64 = 6;
+const STREAM_WANDER: u64 = 7;
+const STREAM_SPIKE: u64 = 8;
 /// Per-trial mounting scatter uses streams STREAM_MOUNT + trial.
 const STREAM_MOUNT: u64 = 1000;
 
@@ -41,13 +49,23 @@ pub struct Simulator {
     seed: u64,
     node_gain: Vec<f64>,
     node_g0: Vec<f64>,
+    /// Per-node factor of the law's shape parameter (1 without `spread.node_exponent_log_sd`).
+    node_shape: Vec<f64>,
     vos_v: Vec<f64>,
     noise: Rng,
     tremor: Option<(Tremor, f64, f64)>,
     creep: Vec<f64>,
     hyst: Vec<f64>,
     t_sensor_c: Option<f64>,
-    contact: Option<(Contact, Vec<f64>)>,
+    /// Current contact, its jitter displacement (rows, cols) and the node weights.
+    contact: Option<(Contact, (f64, f64), Vec<f64>)>,
+    /// Contact jitter: its draws, the displacement of the current press, and whether the
+    /// scripted force was on at the previous frame (a press starts when it comes on).
+    jitter: Rng,
+    jitter_offset: (f64, f64),
+    pressing: bool,
+    /// Wander and spikes.
+    layers: NoiseLayers,
     /// Current mounting, its trial, the per-node baseline factors and the effective curvature.
     mounting: Option<(Mounting, u32, Vec<f64>, f64)>,
     g_s: Vec<f64>,
@@ -59,7 +77,7 @@ pub struct Simulator {
 }
 
 /// Position across the bend, in (-1, 1), of each node for a mounting.
-fn across_bend(rows: usize, cols: usize, m: &Mounting) -> Vec<f64> {
+fn across_bend(rows: usize, cols: usize, m: &Mounting, any_angle: bool) -> Vec<f64> {
     let mut u = Vec::with_capacity(rows * cols);
     for i in 0..rows {
         for j in 0..cols {
@@ -68,12 +86,7 @@ fn across_bend(rows: usize, cols: usize, m: &Mounting) -> Vec<f64> {
             if m.flipped {
                 x = -x;
             }
-            u.push(match m.rotation_deg {
-                90 => y,
-                180 => -x,
-                270 => -y,
-                _ => x,
-            });
+            u.push(forms::across(x, y, m.rotation_deg, any_angle));
         }
     }
     u
@@ -83,7 +96,8 @@ impl Simulator {
     /// Builds a simulator; validates the model and compiles the scenario.
     pub fn new(model: &SensorModel, scenario: &Scenario) -> Result<Simulator, SimError> {
         model.validate()?;
-        let timeline = Timeline::compile(scenario, model.rows, model.cols)?;
+        let timeline =
+            Timeline::compile_with(scenario, model.rows, model.cols, model.curvature.any_angle)?;
         let n = model.rows * model.cols;
         let seed = scenario.seed;
         let mut spread = Rng::new(model.spread.build_seed.unwrap_or(seed), STREAM_SPREAD);
@@ -100,6 +114,14 @@ impl Simulator {
             node_gain.clone_from(&nf.gain);
             node_g0.clone_from(&nf.g0);
         }
+        let node_shape = if s.node_exponent_log_sd > 0.0 {
+            let mut r = Rng::new(model.spread.build_seed.unwrap_or(seed), STREAM_SHAPE);
+            (0..n)
+                .map(|_| (s.node_exponent_log_sd * r.normal()).exp())
+                .collect()
+        } else {
+            vec![1.0; n]
+        };
         let mut xt = Rng::new(model.spread.build_seed.unwrap_or(seed), STREAM_CROSSTALK);
         let vos_max = model.crosstalk.as_ref().map_or(0.0, |c| c.vos_max_v);
         let vos_v = (0..model.cols)
@@ -128,6 +150,7 @@ impl Simulator {
             seed,
             node_gain,
             node_g0,
+            node_shape,
             vos_v,
             noise: Rng::new(seed, STREAM_NOISE),
             tremor,
@@ -139,6 +162,10 @@ impl Simulator {
             hyst: vec![f64::NAN; n * hyst_terms],
             t_sensor_c: None,
             contact: None,
+            jitter: Rng::new(seed, STREAM_JITTER),
+            jitter_offset: (0.0, 0.0),
+            pressing: false,
+            layers: NoiseLayers::new(&model.noise, n, seed, STREAM_WANDER, STREAM_SPIKE),
             mounting: None,
             g_s: vec![0.0; n],
             vout_v: vec![0.0; n],
@@ -193,13 +220,13 @@ impl Simulator {
 
     /// Force-sensitivity factor at curvature `kappa` (1 when flat).
     pub fn sensitivity(&self, kappa_m1: f64) -> f64 {
-        1.0 / (1.0 + kappa_m1.max(0.0) / self.model.curvature.sensitivity_kappa_s_m1)
+        forms::sensitivity(&self.model.curvature, kappa_m1)
     }
 
     /// Unloaded-conductance factor of every node for a mounting (1 when flat).
     pub fn baseline_factors(&self, m: &Mounting) -> Vec<f64> {
         let c = &self.model.curvature;
-        let u = across_bend(self.model.rows, self.model.cols, m);
+        let u = across_bend(self.model.rows, self.model.cols, m, c.any_angle);
         let mean_u2 = u.iter().map(|x| x * x).sum::<f64>() / u.len() as f64;
         let g1 = if m.flipped {
             c.baseline_g1_flipped_m
@@ -210,7 +237,7 @@ impl Simulator {
         u.iter()
             .map(|&x| {
                 let shape = g1 + c.pattern_quad_m * (x * x - mean_u2) + c.pattern_lin_m * x;
-                (1.0 + k * shape + c.baseline_g2_m2 * k * k).max(0.05)
+                forms::baseline_factor(c, k, shape)
             })
             .collect()
     }
@@ -222,9 +249,26 @@ impl Simulator {
         self.frame += 1;
         let (mounting, trial) = self.timeline.mounting(t);
         let contact = self.timeline.contact(t);
-        if self.contact.as_ref().map(|c| c.0) != Some(contact) {
-            let w = contact.weights(self.model.rows, self.model.cols);
-            self.contact = Some((contact, w));
+        let cm = &self.model.contact;
+        let pressing = self.timeline.force_n(t) > 0.0;
+        if pressing && !self.pressing && cm.jitter_nodes > 0.0 {
+            // A new press lands somewhere else.
+            self.jitter_offset = (
+                cm.jitter_nodes * self.jitter.normal(),
+                cm.jitter_nodes * self.jitter.normal(),
+            );
+        }
+        self.pressing = pressing;
+        let offset = self.jitter_offset;
+        if self.contact.as_ref().map(|c| (c.0, c.1)) != Some((contact, offset)) {
+            let w = cm.weights(
+                &contact,
+                offset.0,
+                offset.1,
+                self.model.rows,
+                self.model.cols,
+            );
+            self.contact = Some((contact, offset, w));
         }
         let force_n = self.applied_force_n(t);
         let ambient = self.timeline.temp_c(t);
@@ -261,7 +305,7 @@ impl Simulator {
                 .as_ref()
                 .and_then(|nf| nf.load_share.clone())
                 .unwrap_or_else(|| vec![1.0; self.n]);
-            self.contact = Some((whole, weights));
+            self.contact = Some((whole, (0.0, 0.0), weights));
         }
         self.driven_force = Some(force_n);
         let mounting = Mounting {
@@ -339,7 +383,7 @@ impl Simulator {
         };
         let driven = self.driven_force.is_some();
         let (weights, base) = match (&self.contact, &self.mounting) {
-            (Some(c), Some(m)) => (&c.1, &m.2),
+            (Some(c), Some(m)) => (&c.2, &m.2),
             _ => return,
         };
         for k in 0..self.n {
@@ -393,9 +437,9 @@ impl Simulator {
                 }
                 f += extra;
             }
-            let load = f.max(0.0).powf(mat.exponent);
+            let (amplitude, load) = forms::force_term(mat, self.node_shape[k], f);
             let g_us = (mat.g0_us * self.node_g0[k] * base[k]
-                + self.node_gain[k] * mat.gain_us_per_n * sens * load)
+                + self.node_gain[k] * amplitude * sens * load)
                 * thermal;
             let g = (g_us * 1e-6).max(0.0);
             self.g_s[k] = g / (1.0 + g * mat.r_floor_ohm);
@@ -455,14 +499,22 @@ impl Simulator {
     fn quantize(&mut self, out: &mut [f32]) {
         let r = &self.model.readout;
         let max = r.max_code();
+        // Wander and spikes, in the reading's units (None when off: the reading is untouched).
+        let extra = self.layers.next(self.dt_s);
+        let add = |k: usize, v: &mut f64| {
+            if let Some(e) = extra {
+                *v += e[k];
+            }
+        };
         match r.kind {
             ReadoutKind::Amplifier => {}
             ReadoutKind::Resistance => {
-                for (o, &ohm) in out.iter_mut().zip(&self.vout_v) {
+                for (k, (o, &ohm)) in out.iter_mut().zip(&self.vout_v).enumerate() {
                     let mut v = ohm;
                     if r.noise_counts > 0.0 {
                         v += r.noise_counts * self.noise.normal();
                     }
+                    add(k, &mut v);
                     if r.resolution_ohm > 0.0 {
                         v = (v / r.resolution_ohm).round() * r.resolution_ohm;
                     }
@@ -471,21 +523,32 @@ impl Simulator {
                 return;
             }
             ReadoutKind::Divider => {
-                for (o, &ohm) in out.iter_mut().zip(&self.vout_v) {
-                    let mut code = max * ohm / (ohm + r.r_ref_ohm);
+                for (k, (o, &ohm)) in out.iter_mut().zip(&self.vout_v).enumerate() {
+                    let mut code = if r.divider_rises {
+                        max * r.r_ref_ohm / (ohm + r.r_ref_ohm)
+                    } else {
+                        max * ohm / (ohm + r.r_ref_ohm)
+                    };
                     if r.noise_counts > 0.0 {
                         code += r.noise_counts * self.noise.normal();
                     }
+                    add(k, &mut code);
                     *o = code.round().clamp(0.0, max) as f32;
                 }
                 return;
             }
         }
-        for (o, &v) in out.iter_mut().zip(&self.vout_v) {
+        for (k, (o, &v)) in out.iter_mut().zip(&self.vout_v).enumerate() {
             let clipped = v.clamp(0.0, r.vsat_v);
             let mut code = clipped / r.adc_ref_v * max;
             if v < r.vsat_v && r.noise_counts > 0.0 {
                 code += r.noise_counts * self.noise.normal();
+            }
+            if v < r.vsat_v {
+                add(k, &mut code);
+            }
+            if r.inverted {
+                code = max - code;
             }
             *o = code.round().clamp(0.0, max) as f32;
         }
@@ -493,364 +556,10 @@ impl Simulator {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::scenario::Step;
-
-    fn quiet_model() -> SensorModel {
-        let mut m = SensorModel::default();
-        m.readout.noise_counts = 0.0;
-        m
-    }
-
-    fn run(model: &SensorModel, scenario: &Scenario, frames: usize) -> Vec<(FrameTruth, Vec<f32>)> {
-        let mut sim = Simulator::new(model, scenario).expect("valid");
-        let mut out = vec![0.0f32; model.rows * model.cols];
-        (0..frames)
-            .map(|_| {
-                let t = sim.step(&mut out);
-                (t, out.clone())
-            })
-            .collect()
-    }
-
-    fn ramp(curvature: f64) -> Scenario {
-        Scenario {
-            rate_hz: 100.0,
-            mounting: Mounting {
-                curvature_m1: curvature,
-                ..Mounting::default()
-            },
-            steps: vec![Step::Ramp {
-                force_n: 20.0,
-                duration_s: 10.0,
-            }],
-            ..Scenario::default()
-        }
-    }
-
-    fn block_sum(frame: &[f32]) -> f64 {
-        [5, 6, 9, 10].iter().map(|&k| frame[k] as f64).sum()
-    }
-
-    #[test]
-    fn response_is_monotone_in_force() {
-        let frames = run(&quiet_model(), &ramp(0.0), 1000);
-        let mut prev = 0.0;
-        for (truth, f) in &frames {
-            let s = block_sum(f);
-            assert!(s >= prev, "block sum fell at {} N", truth.force_n);
-            prev = s;
-        }
-        let first = block_sum(&frames[0].1);
-        assert!(
-            prev - first > 600.0,
-            "20 N should move the block by hundreds of counts"
-        );
-    }
-
-    #[test]
-    fn sensitivity_falls_with_curvature() {
-        let mut deltas = Vec::new();
-        for k in [0.0, 40.0, 80.0] {
-            let frames = run(&quiet_model(), &ramp(k), 501);
-            deltas.push(block_sum(&frames[500].1) - block_sum(&frames[0].1));
-        }
-        assert!(deltas[0] > deltas[1] && deltas[1] > deltas[2], "{deltas:?}");
-        assert!(
-            deltas[2] < 0.8 * deltas[0],
-            "loss at 80 1/m too small: {deltas:?}"
-        );
-    }
-
-    #[test]
-    fn baseline_pattern_depends_on_curvature_and_orientation() {
-        let mut m = quiet_model();
-        m.material.g0_us = 200.0; // a high-baseline build makes the pattern easy to read
-        let sim = Simulator::new(&m, &Scenario::default()).expect("valid");
-        let flat = sim.baseline_factors(&Mounting::default());
-        assert!(flat.iter().all(|f| (f - 1.0).abs() < 1e-12));
-        let bent = Mounting {
-            curvature_m1: 60.0,
-            ..Mounting::default()
-        };
-        let a = sim.baseline_factors(&bent);
-        let b = sim.baseline_factors(&Mounting {
-            rotation_deg: 90,
-            ..bent
-        });
-        let c = sim.baseline_factors(&Mounting {
-            flipped: true,
-            ..bent
-        });
-        assert!(
-            a.iter().any(|f| (f - 1.0).abs() > 0.1),
-            "curvature moves the baseline"
-        );
-        assert_ne!(a, b, "rotation changes the pattern");
-        assert_ne!(a, c, "flipping changes the pattern");
-        // Along the bend the pattern varies across columns for rotation 0, rows for 90.
-        assert!((a[0] - a[4]).abs() < 1e-12 && (a[0] - a[1]).abs() > 1e-3);
-        assert!((b[0] - b[1]).abs() < 1e-12 && (b[0] - b[4]).abs() > 1e-3);
-        // And it reaches the ADC codes.
-        let mut s = ramp(0.0);
-        s.steps.clear();
-        let flat_codes = run(&m, &s, 1)[0].1.clone();
-        s.mounting.curvature_m1 = 60.0;
-        let bent_codes = run(&m, &s, 1)[0].1.clone();
-        assert_ne!(flat_codes, bent_codes);
-    }
-
-    #[test]
-    fn same_seed_same_frames_other_seed_other_frames() {
-        let m = SensorModel {
-            creep: Some(Default::default()),
-            hysteresis: Some(Default::default()),
-            thermal_drift: Some(Default::default()),
-            crosstalk: Some(Default::default()),
-            scan_skew: Some(Default::default()),
-            ..SensorModel::default()
-        };
-        let s = Scenario::demo(30.0, 5);
-        let a = run(&m, &s, 800);
-        let b = run(&m, &s, 800);
-        assert_eq!(a, b);
-        let s2 = Scenario::demo(30.0, 6);
-        let c = run(&m, &s2, 800);
-        assert_ne!(a, c);
-    }
-
-    #[test]
-    fn every_geometry_from_1x1_to_32x32_runs() {
-        for (rows, cols) in [(1, 1), (1, 8), (3, 5), (32, 32)] {
-            let m = SensorModel {
-                rows,
-                cols,
-                ..quiet_model()
-            };
-            let frames = run(&m, &ramp(20.0), 300);
-            let (truth, last) = &frames[299];
-            assert_eq!(last.len(), rows * cols);
-            let first = &frames[0].1;
-            let moved: f32 = last.iter().zip(first).map(|(a, b)| a - b).sum();
-            assert!(
-                moved > 10.0,
-                "{rows}x{cols}: {moved} counts at {} N",
-                truth.force_n
-            );
-        }
-    }
-
-    #[test]
-    fn rail_clipping_pins_the_top_code() {
-        let mut m = quiet_model();
-        m.material.r_floor_ohm = 0.0;
-        m.material.gain_us_per_n = 3000.0;
-        let frames = run(&m, &ramp(0.0), 1000);
-        let last = &frames[999].1;
-        assert_eq!(last[5], 1023.0);
-        assert!(last[0] < 200.0, "unloaded nodes stay low");
-    }
-
-    #[test]
-    fn crosstalk_row_part_lowers_pressed_nodes() {
-        let mut plain = quiet_model();
-        plain.material.r_floor_ohm = 0.0;
-        let mut xt = plain.clone();
-        xt.crosstalk = Some(crate::model::Crosstalk {
-            rs_ohm: 120.0,
-            vos_max_v: 0.0,
-        });
-        let a = run(&plain, &ramp(0.0), 1000);
-        let b = run(&xt, &ramp(0.0), 1000);
-        assert!(
-            b[999].1[5] < a[999].1[5],
-            "{} vs {}",
-            b[999].1[5],
-            a[999].1[5]
-        );
-    }
-
-    #[test]
-    fn creep_grows_under_constant_load() {
-        let mut m = quiet_model();
-        m.creep = Some(crate::model::Creep {
-            amplitudes: vec![0.2],
-            tau_s: vec![2.0],
-        });
-        let s = Scenario {
-            rate_hz: 100.0,
-            steps: vec![
-                Step::Ramp {
-                    force_n: 8.0,
-                    duration_s: 0.1,
-                },
-                Step::Rest { duration_s: 10.0 },
-            ],
-            ..Scenario::default()
-        };
-        let frames = run(&m, &s, 1000);
-        assert!(block_sum(&frames[999].1) > block_sum(&frames[20].1) + 20.0);
-    }
-}
+mod tests;
 
 #[cfg(test)]
-mod driven_tests {
-    use super::*;
-    use crate::model::{Hysteresis, NodeFactors};
+mod driven_tests;
 
-    #[test]
-    fn driven_mode_follows_the_given_inputs_and_node_factors() {
-        let mut m = SensorModel::default();
-        m.readout.noise_counts = 0.0;
-        m.nodes = Some(NodeFactors {
-            g0: vec![1.0; 16],
-            gain: (0..16).map(|k| if k == 5 { 1.0 } else { 0.0 }).collect(),
-            load_share: None,
-        });
-        let mut sim = Simulator::new(&m, &Scenario::default()).expect("valid");
-        let mut out = vec![0.0f32; 16];
-        sim.step_driven(0.0, 0.0, 0.0, 25.0, 0, &mut out);
-        let rest = out.clone();
-        sim.step_driven(0.01, 5.0, 0.0, 25.0, 0, &mut out);
-        assert!(out[5] > rest[5] + 50.0, "{} vs {}", out[5], rest[5]);
-        assert_eq!(out[0], rest[0], "a node with zero gain does not respond");
-        // A node carrying half the load reads what the full node reads at half the force.
-        let mut half = m.clone();
-        if let Some(nf) = &mut half.nodes {
-            nf.load_share = Some((0..16).map(|k| if k == 5 { 0.5 } else { 1.0 }).collect());
-        }
-        let mut sim_half = Simulator::new(&half, &Scenario::default()).expect("valid");
-        let mut sim_full = Simulator::new(&m, &Scenario::default()).expect("valid");
-        let mut out_full = vec![0.0f32; 16];
-        sim_half.step_driven(0.0, 8.0, 0.0, 25.0, 0, &mut out);
-        sim_full.step_driven(0.0, 4.0, 0.0, 25.0, 0, &mut out_full);
-        assert_eq!(out[5], out_full[5]);
-        // Curvature lowers the sensitivity in driven mode too.
-        let mut bent = Simulator::new(&m, &Scenario::default()).expect("valid");
-        bent.step_driven(0.0, 5.0, 80.0, 25.0, 0, &mut out);
-        let mut flat = Simulator::new(&m, &Scenario::default()).expect("valid");
-        let mut out2 = vec![0.0f32; 16];
-        flat.step_driven(0.0, 5.0, 0.0, 25.0, 0, &mut out2);
-        assert!(out[5] < out2[5]);
-    }
-
-    #[test]
-    fn resistance_and_divider_readouts_fall_with_force() {
-        for kind in [ReadoutKind::Resistance, ReadoutKind::Divider] {
-            let mut m = SensorModel {
-                rows: 1,
-                cols: 1,
-                ..SensorModel::default()
-            };
-            m.readout.kind = kind;
-            m.readout.noise_counts = 0.0;
-            let mut sim = Simulator::new(&m, &Scenario::default()).expect("valid");
-            let mut out = vec![0.0f32; 1];
-            let mut prev = f32::INFINITY;
-            for (i, f) in [0.0, 1.0, 5.0, 20.0].iter().enumerate() {
-                sim.step_driven(i as f64 * 0.01, *f, 0.0, 25.0, 0, &mut out);
-                assert!(out[0] < prev, "{kind:?}: {} at {f} N", out[0]);
-                prev = out[0];
-            }
-        }
-    }
-
-    /// A one-node sensor with Bouc-Wen hysteresis (saturation 0.5 N, weight 0.3) with the given
-    /// input deadband and exponent, driven through `forces` at 100 Hz; returns the codes and
-    /// the states.
-    fn bouc_wen_run(deadband: f64, exponent: f64, forces: &[f64]) -> (Vec<f32>, Vec<f64>) {
-        let mut m = SensorModel {
-            rows: 1,
-            cols: 1,
-            ..SensorModel::default()
-        };
-        m.readout.noise_counts = 0.0;
-        m.hysteresis = Some(Hysteresis {
-            weight: 0.3,
-            thresholds_n: Vec::new(),
-            bouc_wen_saturation_n: Some(0.5),
-            bouc_wen_exponent: exponent,
-            input_deadband_n: deadband,
-        });
-        m.validate().expect("a valid Bouc-Wen model");
-        let mut sim = Simulator::new(&m, &Scenario::default()).expect("valid");
-        let mut out = vec![0.0f32; 1];
-        let (mut codes, mut states) = (Vec::new(), Vec::new());
-        for (i, f) in forces.iter().enumerate() {
-            sim.step_driven(i as f64 * 0.01, *f, 0.0, 25.0, 0, &mut out);
-            codes.push(out[0]);
-            states.push(sim.hyst[0]);
-        }
-        (codes, states)
-    }
-
-    #[test]
-    fn bouc_wen_hysteresis_makes_a_loop_and_saturates() {
-        // 0 -> 10 N -> 0 in steps of 0.1 N.
-        let up: Vec<f64> = (0..=100).map(|i| i as f64 * 0.1).collect();
-        let forces: Vec<f64> = up.iter().chain(up.iter().rev()).copied().collect();
-        let (codes, states) = bouc_wen_run(0.0, 1.0, &forces);
-        // At the top the state sits at its saturation; on the way down it has swung negative.
-        assert!((states[100] - 0.5).abs() < 1e-3, "{}", states[100]);
-        assert!(
-            states[forces.len() - 1] < -0.4,
-            "{}",
-            states[forces.len() - 1]
-        );
-        // At 5 N the loading branch (state +0.5) reads above the unloading one (state -0.5).
-        let (load, unload) = (codes[50], codes[forces.len() - 1 - 50]);
-        assert!(load > unload + 2.0, "loading {load} vs unloading {unload}");
-    }
-
-    #[test]
-    fn a_larger_bouc_wen_exponent_sharpens_the_knee() {
-        // From the virgin state, 0.5 N of load (one saturation): z = 0.5 (1 - e^-1) = 0.316
-        // with n = 1; with n = 4 the state runs nearly linearly until close to saturation.
-        let forces: Vec<f64> = (0..=50).map(|i| i as f64 * 0.01).collect();
-        let (_, soft) = bouc_wen_run(0.0, 1.0, &forces);
-        let (_, sharp) = bouc_wen_run(0.0, 4.0, &forces);
-        assert!((soft[50] - 0.316).abs() < 0.01, "{}", soft[50]);
-        assert!(sharp[50] > 0.4 && sharp[50] <= 0.5, "{}", sharp[50]);
-    }
-
-    #[test]
-    fn an_input_deadband_keeps_force_noise_from_ratcheting_the_bouc_wen_state() {
-        // Load to 5 N, then hold with +-0.02 N of alternating load-cell noise.
-        let mut forces: Vec<f64> = (0..=50).map(|i| i as f64 * 0.1).collect();
-        forces.extend((0..2000).map(|i| 5.0 + if i % 2 == 0 { 0.02 } else { -0.02 }));
-        let (_, raw) = bouc_wen_run(0.0, 1.0, &forces);
-        let (_, clean) = bouc_wen_run(0.06, 1.0, &forces);
-        let last = forces.len() - 1;
-        assert!(
-            raw[last] < 0.25,
-            "without a deadband the noise walks it down: {}",
-            raw[last]
-        );
-        assert!(
-            (clean[last] - 0.5).abs() < 0.01,
-            "with one it stays saturated: {}",
-            clean[last]
-        );
-    }
-
-    #[test]
-    fn plays_and_bouc_wen_exclude_each_other() {
-        let mut m = SensorModel {
-            hysteresis: Some(Hysteresis {
-                bouc_wen_saturation_n: Some(0.5),
-                ..Hysteresis::default()
-            }),
-            ..SensorModel::default()
-        };
-        let err = m.validate().expect_err("both forms at once").to_string();
-        assert!(err.contains("exclude each other"), "{err}");
-        m.hysteresis = Some(Hysteresis {
-            thresholds_n: Vec::new(),
-            bouc_wen_saturation_n: Some(0.0),
-            ..Hysteresis::default()
-        });
-        let err = m.validate().expect_err("zero saturation").to_string();
-        assert!(err.contains("bouc_wen_saturation_n"), "{err}");
-    }
-}
+#[cfg(test)]
+mod zoo_tests;
