@@ -198,6 +198,8 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
         frames = s.frames,
         dropped = s.dropped,
         reloads = s.reloads,
+        skipped_geometry = s.geometry_mismatches,
+        skipped_readout = s.readout_mismatches,
         adaptive_caught = s.wake.caught,
         adaptive_waiting = s.wake.waiting,
         adaptive_fallbacks = s.wake.fallbacks,

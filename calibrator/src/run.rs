@@ -36,7 +36,8 @@ pub struct Summary {
     pub dropped: u64,
     pub reloads: u32,
     pub geometry_mismatches: u64,
-    /// Frames skipped because the stream declares another readout than the calibration's.
+    /// Frames skipped because the stream's readings move the other way with force than the
+    /// calibration's readout (see `Readout::check_stream`).
     pub readout_mismatches: u64,
     /// What the adaptive wake-up did (zero in other modes).
     pub wake: taxel_runtime::wake::AdaptiveStats,
@@ -228,6 +229,7 @@ pub fn run(
     let mut seq = SeqTracker::default();
     let mut mismatch_reported = false;
     let mut readout_reported = false;
+    let mut readout_noted = false;
     let mut gap_first = taxel_runtime::process::restarted();
     let mut last_report = Instant::now();
     let mut frames_at_report = 0;
@@ -264,17 +266,24 @@ pub fn run(
                 return Ok(());
             }
             let code = raw_flags::readout_code(frame.flags);
-            if let Err(reason) = cal.calibration().readout.check_stream(
+            match cal.calibration().readout.check_stream(
                 &cfg.calibration.display().to_string(),
                 code,
                 frame.full_scale as f64,
             ) {
-                summary.readout_mismatches += 1;
-                if !readout_reported {
-                    error!("{reason}; frames are skipped");
-                    readout_reported = true;
+                Err(reason) => {
+                    summary.readout_mismatches += 1;
+                    if !readout_reported {
+                        error!("{reason}; frames are skipped");
+                        readout_reported = true;
+                    }
+                    return Ok(());
                 }
-                return Ok(());
+                Ok(Some(note)) if !readout_noted => {
+                    info!("{note}");
+                    readout_noted = true;
+                }
+                Ok(_) => {}
             }
             let gap = seq.observe(frame.seq) > 0;
             cal.apply(frame, now_ns(), &mut out);

@@ -16,7 +16,7 @@ use taxel_formats::{Recording, RecordingWriter};
 use taxel_plot::{Chart, Mark, Series};
 use taxel_sim::{Mounting, Scenario, SensorModel, Simulator, Step, Tremor};
 
-use crate::evaluate::{evaluate, Report};
+use crate::evaluate::{evaluate, Headline, LevelResult, Report};
 use crate::fit::{fit_calibration, FitOptions};
 
 /// The paper's objects and their curvature (1/m).
@@ -217,22 +217,34 @@ fn mean(v: impl Iterator<Item = f64>) -> f64 {
     s / n.max(1) as f64
 }
 
-/// Means over every scored (object, level) cell: flat, curvature-aware, and the worst
-/// curvature-aware cell (N).
+/// Means over every scored (object, level) cell of the headline (the whole array): flat,
+/// curvature-aware, and the worst curvature-aware cell (N).
 pub fn averages(reports: &[(String, f64, Report)]) -> (f64, f64, f64) {
-    let all = |flat: bool| {
-        mean(reports.iter().flat_map(|(_, _, r)| {
-            r.levels
-                .iter()
-                .filter(|l| l.n > 0)
-                .map(move |l| if flat { l.flat_mae_n } else { l.curve_mae_n })
-        }))
+    cell_averages(reports.iter().map(|(_, _, r)| r.levels.as_slice()))
+}
+
+/// [`averages`] of one block's scores (the whole array or the central block).
+pub fn block_averages(reports: &[(String, f64, Report)], block: Headline) -> (f64, f64, f64) {
+    cell_averages(reports.iter().filter_map(move |(_, _, r)| {
+        r.blocks
+            .iter()
+            .find(|b| b.block == block)
+            .map(|b| b.levels.as_slice())
+    }))
+}
+
+fn cell_averages<'a>(levels: impl Iterator<Item = &'a [LevelResult]> + Clone) -> (f64, f64, f64) {
+    let scored = |flat: bool| {
+        levels
+            .clone()
+            .flat_map(|l| l.iter().filter(|l| l.n > 0))
+            .map(move |l| if flat { l.flat_mae_n } else { l.curve_mae_n })
     };
-    let worst = reports
-        .iter()
-        .flat_map(|(_, _, r)| r.levels.iter().filter(|l| l.n > 0).map(|l| l.curve_mae_n))
-        .fold(0.0, f64::max);
-    (all(true), all(false), worst)
+    (
+        mean(scored(true)),
+        mean(scored(false)),
+        scored(false).fold(0.0, f64::max),
+    )
 }
 
 /// The table in the paper's layout (objects x levels, flat vs curvature-aware MAE +- SD).

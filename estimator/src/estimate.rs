@@ -71,7 +71,9 @@ impl<'m> Estimator<'m> {
             let mut readout_known = false;
             if let Some((m, _)) = &self.model {
                 m.check_nodes("curvature model", frame.n_nodes())?;
-                m.check_stream(code, frame.full_scale as f64)?;
+                if let Some(note) = m.check_stream(code, frame.full_scale as f64)? {
+                    tracing::info!("{note}");
+                }
                 readout_known = m.readout.is_some();
             }
             // Without a readout of its own, the stream's declared one sets the judging domain.

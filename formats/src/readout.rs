@@ -197,28 +197,43 @@ impl Readout {
     }
 
     /// Checks that a stream declaring readout `code` and full scale `full_scale` (0 = unknown)
-    /// can be read with this readout; the error is one line naming both.
-    pub fn check_stream(&self, what: &str, code: u32, full_scale: f64) -> Result<(), String> {
-        if let Some((kind, rises)) = Readout::kind_of_code(code) {
-            if kind != self.kind || rises != self.rises {
-                let stream = Readout {
-                    kind,
-                    full_scale,
-                    rises,
-                };
-                return Err(format!(
-                    "{what} was made for a {self} readout, but the stream declares {stream}"
-                ));
-            }
-        }
-        let uses_fs = self.kind == ReadoutKind::Divider;
-        if uses_fs && full_scale > 0.0 && (full_scale - self.full_scale).abs() > 0.5 {
+    /// can be read with this readout. The direction decides: a stream whose readings move the
+    /// other way with force is refused (one line naming both). A stream of the same direction
+    /// but another declared kind or full scale is read with this readout's transform, the one
+    /// its fit chose for readings of that direction (auto can read an amplifier's saturating
+    /// codes best as a divider's, or a divider's falling codes as ohms, which differ only in
+    /// scale); `Ok(Some(note))` then says so in one line, to be logged once.
+    pub fn check_stream(
+        &self,
+        what: &str,
+        code: u32,
+        full_scale: f64,
+    ) -> Result<Option<String>, String> {
+        let Some((kind, rises)) = Readout::kind_of_code(code) else {
+            return Ok(None);
+        };
+        let stream = Readout {
+            kind,
+            full_scale,
+            rises,
+        };
+        let way = |r: bool| if r { "rise" } else { "fall" };
+        if rises != self.rises {
             return Err(format!(
-                "{what} was made for full scale {}, but the stream's is {full_scale}",
-                self.full_scale
+                "{what} was made for readings that {} with force ({self}), but the stream declares {stream}, whose readings {}",
+                way(self.rises),
+                way(rises)
             ));
         }
-        Ok(())
+        let same_scale = full_scale <= 0.0
+            || !matches!(self.kind, ReadoutKind::Divider | ReadoutKind::Inverted)
+            || (full_scale - self.full_scale).abs() <= 0.5;
+        if kind == self.kind && same_scale {
+            return Ok(None);
+        }
+        Ok(Some(format!(
+            "the stream declares {stream}; {what} reads it as {self} (the same direction: its fit chose that transform)"
+        )))
     }
 }
 
@@ -445,14 +460,25 @@ mod tests {
         };
         assert!(bad.validate().expect_err("refused").contains("contradicts"));
         let amp = Readout::AMPLIFIER_10BIT;
-        amp.check_stream("cal.toml", 0, 0.0)
-            .expect("undeclared stream");
-        amp.check_stream("cal.toml", 1, 1023.0).expect("same");
+        assert_eq!(amp.check_stream("cal.toml", 0, 0.0), Ok(None));
+        assert_eq!(amp.check_stream("cal.toml", 1, 1023.0), Ok(None));
+        // Readings that fall with force into a calibration for rising ones: refused.
         let e = amp.check_stream("cal.toml", 4, 0.0).expect_err("refused");
         assert!(e.contains("cal.toml") && e.contains("resistance"), "{e}");
-        let div = Readout::new(ReadoutKind::Divider, 4095.0);
-        let e = div.check_stream("m", 2, 1023.0).expect_err("refused");
-        assert!(e.contains("4095") && e.contains("1023"), "{e}");
+        let e = amp
+            .check_stream("cal.toml", 5, 4095.0)
+            .expect_err("refused");
+        assert!(e.contains("inverted") && e.contains("fall"), "{e}");
+        // The same direction read with another transform: accepted, with a note.
+        let div = Readout::new(ReadoutKind::Divider, 511.0);
+        let note = div.check_stream("m", 1, 1023.0).expect("same direction");
+        assert!(note.is_some_and(|n| n.contains("amplifier") && n.contains("divider")));
+        let note = div.check_stream("m", 2, 4095.0).expect("same direction");
+        assert!(note.is_some_and(|n| n.contains("4095") && n.contains("511")));
+        assert_eq!(div.check_stream("m", 2, 511.0), Ok(None));
+        let ohm = Readout::new(ReadoutKind::Resistance, 0.0);
+        assert!(ohm.check_stream("m", 3, 4095.0).is_ok_and(|n| n.is_some()));
+        assert!(ohm.check_stream("m", 2, 4095.0).is_err());
     }
 
     #[test]

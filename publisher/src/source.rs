@@ -45,15 +45,16 @@ pub trait Source {
 /// The readout code a simulated board declares.
 pub fn sim_readout_code(r: &taxel_sim::model::Readout) -> u32 {
     use taxel_formats::{Readout, ReadoutKind as K};
-    let kind = match r.kind {
-        taxel_sim::ReadoutKind::Amplifier => K::Amplifier,
-        taxel_sim::ReadoutKind::Resistance => K::Resistance,
-        taxel_sim::ReadoutKind::Divider => K::Divider,
+    let (kind, rises) = match r.kind {
+        taxel_sim::ReadoutKind::Amplifier if r.inverted => (K::Inverted, false),
+        taxel_sim::ReadoutKind::Amplifier => (K::Amplifier, true),
+        taxel_sim::ReadoutKind::Resistance => (K::Resistance, false),
+        taxel_sim::ReadoutKind::Divider => (K::Divider, r.divider_rises),
     };
     Readout {
         kind,
         full_scale: r.max_code(),
-        rises: kind == K::Amplifier,
+        rises,
     }
     .code()
 }
@@ -284,6 +285,25 @@ impl Source for ReplaySource {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_simulated_board_declares_its_readout() {
+        let code = |name: &str| {
+            let m = taxel_sim::presets::preset(name).expect("preset");
+            taxel_formats::Readout::kind_of_code(sim_readout_code(&m.readout))
+        };
+        use taxel_formats::ReadoutKind as K;
+        assert_eq!(code("default"), Some((K::Amplifier, true)));
+        assert_eq!(code("zoo-sat"), Some((K::Amplifier, true)));
+        assert_eq!(code("zoo-pow"), Some((K::Inverted, false)));
+        assert_eq!(code("zoo-log"), Some((K::Divider, false)));
+        let mut m = taxel_sim::presets::preset("zoo-log").expect("preset");
+        m.readout.divider_rises = true;
+        assert_eq!(
+            taxel_formats::Readout::kind_of_code(sim_readout_code(&m.readout)),
+            Some((K::Divider, true))
+        );
+    }
 
     #[test]
     fn replay_follows_the_file_and_repeats() {

@@ -35,6 +35,7 @@ pub fn world_b(dir: &Path, out: &Path, epochs: usize) -> anyhow::Result<ObjectsR
         reports.push((name.to_string(), c, r));
     }
     let (flat_n, curve_n, worst_n) = table1::averages(&reports);
+    let center = table1::block_averages(&reports, crate::evaluate::Headline::Center);
     let (readout, form) = decided(&cals[0]);
     Ok(ObjectsRow {
         world: "world B".into(),
@@ -44,6 +45,7 @@ pub fn world_b(dir: &Path, out: &Path, epochs: usize) -> anyhow::Result<ObjectsR
         flat_n,
         curve_n,
         worst_n,
+        center,
         readout,
         form,
     })

@@ -54,6 +54,9 @@ pub struct ObjectsRow {
     pub flat_n: f64,
     pub curve_n: f64,
     pub worst_n: f64,
+    /// The same for the central 2 x 2 block (the paper's indenter): flat, curvature-aware,
+    /// worst cell (N).
+    pub center: (f64, f64, f64),
     /// What the fit decided: readout and the array's form.
     pub readout: String,
     pub form: String,

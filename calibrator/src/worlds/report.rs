@@ -20,13 +20,13 @@ pub fn markdown(s: &Summary, command: &str) -> String {
     );
     let _ = writeln!(
         m,
-        "| world | seed | curvature R^2 | curvature MAE (1/m) | flat (N) | curvature-aware (N) | worst cell (N) | flat / curvature-aware | readout | form |"
+        "| world | seed | curvature R^2 | curvature MAE (1/m) | flat (N) | curvature-aware (N) | worst cell (N) | flat / curvature-aware | central block: flat / curvature-aware / worst (N) | readout | form |"
     );
-    let _ = writeln!(m, "|---|---:|---:|---:|---:|---:|---:|---:|---|---|");
+    let _ = writeln!(m, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---|");
     for r in &s.objects {
         let _ = writeln!(
             m,
-            "| {} | {} | {:.3} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} | {} | {} |",
+            "| {} | {} | {:.3} | {:.2} | {:.2} | {:.2} | {:.2} | {:.1} | {:.2} / {:.2} / {:.2} | {} | {} |",
             r.world,
             r.seed.map_or("-".to_string(), |s| s.to_string()),
             r.curvature_r2,
@@ -35,13 +35,16 @@ pub fn markdown(s: &Summary, command: &str) -> String {
             r.curve_n,
             r.worst_n,
             r.flat_n / r.curve_n,
+            r.center.0,
+            r.center.1,
+            r.center.2,
             r.readout,
             r.form
         );
     }
     let _ = writeln!(
         m,
-        "| paper (Zhong et al. 2025) | | 0.91 | | {:.2} | {:.2} | | {:.1} | | |",
+        "| paper (Zhong et al. 2025) | | 0.91 | 5.90 | {:.2} | {:.2} | | {:.1} | | | |",
         PAPER_AVERAGES_N.0,
         PAPER_AVERAGES_N.1,
         PAPER_AVERAGES_N.0 / PAPER_AVERAGES_N.1
@@ -118,7 +121,7 @@ pub fn json(s: &Summary) -> String {
         .iter()
         .map(|r| {
             format!(
-                "{{\"world\": {}, \"seed\": {}, \"curvature_r2\": {}, \"curvature_mae_m1\": {}, \"flat_mae_n\": {}, \"curve_mae_n\": {}, \"worst_cell_n\": {}, \"readout\": {}, \"form\": {}}}",
+                "{{\"world\": {}, \"seed\": {}, \"curvature_r2\": {}, \"curvature_mae_m1\": {}, \"flat_mae_n\": {}, \"curve_mae_n\": {}, \"worst_cell_n\": {}, \"center\": {{\"flat_mae_n\": {}, \"curve_mae_n\": {}, \"worst_cell_n\": {}}}, \"readout\": {}, \"form\": {}}}",
                 text(&r.world),
                 r.seed.map_or("null".to_string(), |s| s.to_string()),
                 num(r.curvature_r2),
@@ -126,6 +129,9 @@ pub fn json(s: &Summary) -> String {
                 num(r.flat_n),
                 num(r.curve_n),
                 num(r.worst_n),
+                num(r.center.0),
+                num(r.center.1),
+                num(r.center.2),
                 text(&r.readout),
                 text(&r.form)
             )

@@ -34,6 +34,7 @@ pub fn family(out: &Path, preset: &str, seed: u64, epochs: usize) -> anyhow::Res
     let t1 = dir.join("table1");
     let t = table1::run(&t1, &model, &sensor, seed, |_| {})?;
     let (flat_n, curve_n, worst_n) = table1::averages(&t.reports);
+    let center = table1::block_averages(&t.reports, crate::evaluate::Headline::Center);
     let (readout, form) = decided(&Calibration::load(&t1.join("curvature.toml"))?);
     Ok(ObjectsRow {
         world: preset.to_string(),
@@ -43,6 +44,7 @@ pub fn family(out: &Path, preset: &str, seed: u64, epochs: usize) -> anyhow::Res
         flat_n,
         curve_n,
         worst_n,
+        center,
         readout,
         form,
     })

@@ -496,8 +496,9 @@ impl CurvatureModel {
     }
 
     /// Checks the model can read a stream that declares readout `code` (0: undeclared) and
-    /// full scale `full_scale` (0: unknown).
-    pub fn check_stream(&self, code: u32, full_scale: f64) -> Result<(), ModelError> {
+    /// full scale `full_scale` (0: unknown): refused when its readings move the other way with
+    /// force; a one-line note when they are read with another transform than declared.
+    pub fn check_stream(&self, code: u32, full_scale: f64) -> Result<Option<String>, ModelError> {
         match &self.readout {
             Some(r) => r
                 .check_stream(
@@ -506,7 +507,7 @@ impl CurvatureModel {
                     full_scale,
                 )
                 .map_err(ModelError::Readout),
-            None => Ok(()),
+            None => Ok(None),
         }
     }
 
