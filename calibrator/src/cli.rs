@@ -52,6 +52,12 @@ pub struct EvalArgs {
     /// mounting.
     #[arg(long)]
     pub curvature_m1: Option<f64>,
+    /// With --curvature-m1: the recording continues the calibration's own session (its
+    /// held-out tail, say, which may start in the middle of a press), so its no-load level is
+    /// expected at the calibration's no_load_reading rather than taken from its first steady
+    /// window.
+    #[arg(long, requires = "curvature_m1")]
+    pub continues_calibration: bool,
     /// Curvature-aware calibration (or the only one, with --curvature-m1).
     #[arg(long)]
     pub calibration: PathBuf,
@@ -319,6 +325,7 @@ fn eval(a: EvalArgs) -> Result<(), Failure> {
             m.check_nodes(&p, rec.n_nodes).config_err()?;
             Curvature::Model(m)
         }
+        (None, Some(c)) if a.continues_calibration => Curvature::Continuing(c),
         (None, Some(c)) => Curvature::Known(c),
         (None, None) => {
             return Err(Failure::config(anyhow::anyhow!(

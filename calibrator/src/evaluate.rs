@@ -10,7 +10,8 @@
 //! - given (`Curvature::Known`, a single-node sensor or a known mounting): the stream's
 //!   baseline still comes from the estimator's no-load detection, and until the first window
 //!   from the calibration's `no_load_reading` (when it has one); every frame with a force is
-//!   scored.
+//!   scored. `Curvature::Continuing` is for a recording that continues the calibration's own
+//!   session: its no-load detection starts from that `no_load_reading`.
 //!
 //! Both the whole array and the central 2 x 2 block (the paper's indenter) are scored. The
 //! reference force is the load on the whole sensor, and a hand loads more than the central
@@ -40,8 +41,13 @@ pub const OVERALL_MIN_N: f64 = 0.5;
 pub enum Curvature<'m> {
     /// Predicted from the first no-load window by this model.
     Model(&'m CurvatureModel),
-    /// Given (1/m).
+    /// Given (1/m); the recording's own no-load windows give its baseline.
     Known(f64),
+    /// Given (1/m), and the recording continues the calibration's own session (its held-out
+    /// tail, say, which may start in the middle of a press): the calibration's `no_load_reading`
+    /// is where unloaded windows are expected, so a steady loaded or saturated start, as on a
+    /// rig that never unloads, is not taken for one.
+    Continuing(f64),
 }
 
 /// Which block's force the headline compares with the reference.
@@ -265,16 +271,17 @@ pub fn evaluate_with(
     }
     let detector = DetectorConfig {
         log_domain: curve.readout.log_domain(),
+        rises: Some(curve.readout.rises),
         ..DetectorConfig::default()
     };
     let (model, given) = match curvature {
         Curvature::Model(m) => (Some(m), None),
-        Curvature::Known(c) => (None, Some(c)),
+        Curvature::Known(c) | Curvature::Continuing(c) => (None, Some(c)),
     };
     let mut estimator = Estimator::new(detector, model, given.unwrap_or(0.0));
-    if given.is_some() && curve.no_load_reading.len() == g.rows * g.cols {
-        // A known mounting: the calibration's no-load reading is where unloaded windows are
-        // expected (a steady loaded or saturated start is not mistaken for one).
+    if matches!(curvature, Curvature::Continuing(_))
+        && curve.no_load_reading.len() == g.rows * g.cols
+    {
         estimator.seed_baseline(&curve.no_load_reading);
     }
     let wrap = |c: &Calibration| {

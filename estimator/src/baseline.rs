@@ -21,7 +21,11 @@
 //! gives the first baseline (the stream must start unloaded, as the paper's protocol does). A
 //! steady level away from the baseline by less than `max_rebaseline_sigmas` on every node that
 //! stays for `rebaseline_s` becomes the new baseline: the sensor was remounted (a held press
-//! moves the loaded nodes much further, and a hand's tremor keeps it from being steady).
+//! moves the loaded nodes much further, and a hand's tremor keeps it from being steady). When
+//! the direction of the readings with force is known, a steady level on the unloaded side of
+//! the baseline is no load whatever its distance (a load only raises conductance), and replaces
+//! the baseline at once: Velostat relaxes to a new unloaded level after its first presses, and
+//! a stream cut from the middle of a session may start loaded.
 //!
 //! Readings of a resistance (ohm) are judged in the log domain, where their noise is even. The
 //! published baseline is the level in the stream's own units.
@@ -53,6 +57,11 @@ pub struct DetectorConfig {
     pub max_rebaseline_sigmas: f64,
     /// Judge the readings in the log domain (a resistance readout).
     pub log_domain: bool,
+    /// Whether the readings rise with force (None: not known). When known, a steady level on
+    /// the unloaded side of the baseline (no node more than the contact limit toward load)
+    /// cannot be a press: it replaces the baseline at once, however far it moved (a sensor
+    /// relaxing after its first press, or a stream that started in the middle of one).
+    pub rises: Option<bool>,
     /// Fixed overrides, for those who want them: the largest spread of a steady node, and the
     /// largest level move still counted as no load, in the judging domain's units (reading
     /// units; natural-log units for a resistance). None: adaptive.
@@ -71,6 +80,7 @@ impl Default for DetectorConfig {
             rebaseline_s: 5.0,
             max_rebaseline_sigmas: 60.0,
             log_domain: false,
+            rises: None,
             max_node_sd: None,
             contact_threshold: None,
         }
@@ -199,6 +209,8 @@ pub struct BaselineDetector {
     scratch: Vec<f64>,
     /// Each node's level shift from the baseline in use, for the window just judged.
     shift: Vec<f64>,
+    /// The same, signed toward load (its absolute value when the direction is not known).
+    toward_load: Vec<f64>,
     /// The baseline in use, judging domain and stream units (valid when `has_current`).
     current: Vec<f64>,
     current_raw: Vec<f64>,
@@ -230,6 +242,7 @@ impl BaselineDetector {
             sigma: Vec::new(),
             scratch: Vec::new(),
             shift: Vec::new(),
+            toward_load: Vec::new(),
             current: Vec::new(),
             current_raw: Vec::new(),
             has_current: false,
@@ -259,6 +272,13 @@ impl BaselineDetector {
     pub fn set_log_domain(&mut self, on: bool) {
         if self.history_len == 0 && self.count == 0 {
             self.cfg.log_domain = on;
+        }
+    }
+
+    /// Sets the direction of the readings with force (before the first window completes).
+    pub fn set_rises(&mut self, rises: Option<bool>) {
+        if self.history_len == 0 && self.count == 0 {
+            self.cfg.rises = rises;
         }
     }
 
@@ -295,6 +315,7 @@ impl BaselineDetector {
         self.sigma = vec![0.0; n];
         self.scratch = Vec::with_capacity(w.max(NOISE_HISTORY));
         self.shift = vec![0.0; n];
+        self.toward_load = vec![0.0; n];
         self.current = vec![0.0; n];
         self.current_raw = vec![0.0; n];
         self.candidate = vec![0.0; n];
@@ -346,7 +367,23 @@ impl BaselineDetector {
             return None;
         }
         let limit = |sigma: f64, sigmas: f64, fixed: Option<f64>| fixed.unwrap_or(sigma * sigmas);
-        let remount = self.has_current
+        let unloading = self.has_current
+            && self.cfg.rises.is_some()
+            && (0..self.n).all(|k| {
+                self.toward_load[k]
+                    <= limit(
+                        self.sigma[k],
+                        self.cfg.contact_sigmas,
+                        self.cfg.contact_threshold,
+                    )
+            });
+        if unloading && (0..self.n).any(|k| self.shift[k] > self.sigma[k] * self.cfg.contact_sigmas)
+        {
+            // Moved away toward no load: publish the new level now.
+            self.last_emit_ns = None;
+        }
+        let remount = !unloading
+            && self.has_current
             && (0..self.n).any(|k| {
                 self.shift[k]
                     > limit(
@@ -467,10 +504,17 @@ impl BaselineDetector {
                 }
             };
             steady &= spread_ok;
-            self.shift[k] = if self.has_current {
-                (s.level - self.current[k]).abs()
+            let d = if self.has_current {
+                s.level - self.current[k]
             } else {
                 0.0
+            };
+            self.shift[k] = d.abs();
+            // The domain is increasing in the reading, so the sign of d is the reading's.
+            self.toward_load[k] = match self.cfg.rises {
+                Some(true) => d,
+                Some(false) => -d,
+                None => d.abs(),
             };
         }
         steady

@@ -34,6 +34,7 @@ impl<'m> Estimator<'m> {
     ) -> Estimator<'m> {
         if let Some(r) = model.and_then(|m| m.readout.as_ref()) {
             detector.log_domain = r.log_domain();
+            detector.rises = Some(r.rises);
         }
         Estimator {
             detector: BaselineDetector::new(detector),
@@ -76,12 +77,14 @@ impl<'m> Estimator<'m> {
                 }
                 readout_known = m.readout.is_some();
             }
-            // Without a readout of its own, the stream's declared one sets the judging domain.
-            if let (false, Some((kind, _))) =
+            // Without a readout of its own, the stream's declared one sets the judging domain
+            // and the direction of a load.
+            if let (false, Some((kind, rises))) =
                 (readout_known, taxel_formats::Readout::kind_of_code(code))
             {
                 self.detector
                     .set_log_domain(kind == taxel_formats::ReadoutKind::Resistance);
+                self.detector.set_rises(Some(rises));
             }
         }
         let Some(b) = self

@@ -16,6 +16,7 @@ use crate::table1::{self, LEVELS, OBJECTS};
 pub fn world_b(dir: &Path, out: &Path, epochs: usize) -> anyhow::Result<ObjectsRow> {
     std::fs::create_dir_all(out).map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
     let model = train_curvature(&[dir.join("baselines_train.csv.gz")], 1, epochs)?;
+    model.save(&out.join("curvature.taxcrv"))?;
     let m = curvature_metrics(&model, &[dir.join("baselines_test.csv.gz")])?;
     let fixtures = Recording::read(&dir.join("calibration.csv.gz"))?;
     let mut cals = Vec::new();
@@ -101,7 +102,7 @@ fn one_real(rec: &Recording, out: &Path) -> RealRow {
         let r = evaluate_with(
             &test,
             g,
-            Curvature::Known(0.0),
+            Curvature::Continuing(0.0),
             &cal,
             None,
             &LEVELS,

@@ -52,7 +52,7 @@ pub fn markdown(s: &Summary, command: &str) -> String {
     if !s.real.is_empty() {
         let _ = writeln!(
             m,
-            "\n## Real recordings\n\nEach file's first {:.0} % fits a flat calibration (`taxel calibrator fit --flat`, every default); its last {:.0} % is predicted (`taxel calibrator eval --curvature-m1 0`). Errors over test frames with a reference of at least 0.5 N.\n",
+            "\n## Real recordings\n\nEach file's first {:.0} % fits a flat calibration (`taxel calibrator fit --flat`, every default); its last {:.0} % is predicted (`taxel calibrator eval --curvature-m1 0 --continues-calibration`). Errors over test frames with a reference of at least 0.5 N.\n",
             100.0 * REAL_TRAIN_SHARE,
             100.0 * (1.0 - REAL_TRAIN_SHARE)
         );

@@ -29,6 +29,7 @@ pub fn family(out: &Path, preset: &str, seed: u64, epochs: usize) -> anyhow::Res
     };
     let test = synth::generate(&test_spec, &dir.join("baselines-test"), |_, _| {})?;
     let model = train_curvature(&train, seed, epochs)?;
+    model.save(&dir.join("curvature.taxcrv"))?;
     let m = curvature_metrics(&model, &test)?;
     sensor.spread.build_seed = Some(synth::build_seed(seed, 0));
     let t1 = dir.join("table1");

@@ -317,3 +317,30 @@ fn a_window_that_is_partly_a_press_is_not_steady() {
         d.current()
     );
 }
+
+#[test]
+fn knowing_the_direction_a_level_on_the_unloaded_side_replaces_the_baseline_at_once() {
+    // A stream cut from the middle of a session: it starts in a steady press, which is
+    // (unavoidably) the first baseline, then unloads.
+    let base: Vec<f64> = (0..4).map(|k| 5000.0 - 10.0 * k as f64).collect();
+    for (rises, gain) in [(false, -600.0), (true, 600.0)] {
+        let mut s = Stream::new(base.clone(), 2.0, gain, 11);
+        let mut d = BaselineDetector::new(DetectorConfig {
+            rises: Some(rises),
+            ..DetectorConfig::default()
+        });
+        let first = s.feed(&mut d, 3.0, 4.0, 0.0);
+        assert!(!first.is_empty() && (first[0].mean[0] - 5000.0).abs() > 1000.0);
+        // Unloaded: the first steady window replaces it, published at once, not as a remount.
+        let got = s.feed(&mut d, 1.5, 0.0, 0.0);
+        assert!(!got.is_empty() && !got[0].remount, "rises {rises}: {got:?}");
+        assert!((got[0].mean[0] - 5000.0).abs() < 2.0, "{}", got[0].mean[0]);
+        // A steady press afterwards is still never a baseline.
+        assert!(s.feed(&mut d, 10.0, 4.0, 0.0).is_empty());
+        // Not knowing the direction, the unloaded level waits rebaseline_s as a remount.
+        let mut s = Stream::new(base.clone(), 2.0, gain, 11);
+        let mut d = detector(false);
+        s.feed(&mut d, 3.0, 4.0, 0.0);
+        assert!(s.feed(&mut d, 1.5, 0.0, 0.0).is_empty(), "rises {rises}");
+    }
+}
