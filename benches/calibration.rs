@@ -65,6 +65,29 @@ range = { s = [0, 1250], curvature_m1 = [0, 100] }
     c.bench_function("calibration/apply physics form (2 blocks)", |b| {
         b.iter(|| physics.apply(black_box(&frame), 0, black_box(&mut out)))
     });
+    // The shape-free form, read through a divider (a signal transform per node).
+    let monotone = calibrator(
+        r#"
+id = "bench-monotone"
+version = 1
+rows = 4
+cols = 4
+readout = { kind = "divider", full_scale = 4095.0, rises = true }
+[array]
+name = "array"
+model = { form = "monotone", curvature_m1 = [0, 40, 80], f = [0, 2, 5, 10, 20], s = [[0, 150, 350, 650, 1250], [0, 130, 300, 560, 1100], [0, 110, 250, 470, 950]] }
+range = { s = [0, 1250], curvature_m1 = [0, 80] }
+[[block]]
+name = "center"
+nodes = [5, 6, 9, 10]
+model = { form = "monotone", curvature_m1 = [0, 40, 80], f = [0, 2, 5, 10, 20], s = [[0, 150, 350, 650, 1250], [0, 130, 300, 560, 1100], [0, 110, 250, 470, 950]] }
+range = { s = [0, 1250], curvature_m1 = [0, 80] }
+"#,
+    );
+    c.bench_function(
+        "calibration/apply monotone form, divider readout (2 blocks)",
+        |b| b.iter(|| monotone.apply(black_box(&frame), 0, black_box(&mut out))),
+    );
 }
 
 criterion_group!(benches, bench);

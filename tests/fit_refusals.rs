@@ -15,7 +15,11 @@ fn session(dir: &Path, name: &str, rest_n: f64, reading: impl Fn(f64, usize) -> 
     let mut i = 0usize;
     let mut push = |f: f64, frames: usize, text: &mut String| {
         for _ in 0..frames {
-            text.push_str(&format!("{:.3},{:.0},{f:.4}\n", i as f64 / 50.0, reading(f, i)));
+            text.push_str(&format!(
+                "{:.3},{:.0},{f:.4}\n",
+                i as f64 / 50.0,
+                reading(f, i)
+            ));
             i += 1;
         }
     };
@@ -67,7 +71,9 @@ fn bad_fits_are_refused_with_their_cause_and_nothing_is_written() {
     let (code, stdout, err) = fit(&["--data", &ohms_s, "--out", &out_s]);
     assert_eq!(code, 0, "{err}");
     assert!(
-        stdout.lines().any(|l| l.starts_with("readout auto:") && l.contains("fall")),
+        stdout
+            .lines()
+            .any(|l| l.starts_with("readout auto:") && l.contains("fall")),
         "{stdout}"
     );
     assert!(out.exists());
@@ -94,7 +100,10 @@ fn bad_fits_are_refused_with_their_cause_and_nothing_is_written() {
     for i in 0..3000 {
         let t = i as f64 / 50.0;
         let ohm = 270.0 + 1175.0 * (-t / 15.0).exp() + 2.0 * jitter(i);
-        text.push_str(&format!("{t:.3},{ohm:.0},{:.4}\n", 0.98 + 0.005 * jitter(i + 7)));
+        text.push_str(&format!(
+            "{t:.3},{ohm:.0},{:.4}\n",
+            0.98 + 0.005 * jitter(i + 7)
+        ));
     }
     let hold = dir.path().join("hold.csv");
     std::fs::write(&hold, text).expect("write");
@@ -105,9 +114,15 @@ fn bad_fits_are_refused_with_their_cause_and_nothing_is_written() {
     );
 
     // Readings that do not follow the force: refused, unless asked for.
-    let noise = session(dir.path(), "noise.csv", 0.0, |_, i| 500.0 + 50.0 * jitter(i));
+    let noise = session(dir.path(), "noise.csv", 0.0, |_, i| {
+        500.0 + 50.0 * jitter(i)
+    });
     let noise_s = noise.display().to_string();
-    refused(&["--data", &noise_s, "--out", &out_s], &out, "--accept-poor-fit");
+    refused(
+        &["--data", &noise_s, "--out", &out_s],
+        &out,
+        "--accept-poor-fit",
+    );
     let (code, _, err) = fit(&["--data", &noise_s, "--out", &out_s, "--accept-poor-fit"]);
     assert_eq!(code, 0, "{err}");
     assert!(out.exists());

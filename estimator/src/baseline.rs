@@ -23,9 +23,11 @@
 //! stays for `rebaseline_s` becomes the new baseline: the sensor was remounted (a held press
 //! moves the loaded nodes much further, and a hand's tremor keeps it from being steady). When
 //! the direction of the readings with force is known, a steady level on the unloaded side of
-//! the baseline is no load whatever its distance (a load only raises conductance), and replaces
-//! the baseline at once: Velostat relaxes to a new unloaded level after its first presses, and
-//! a stream cut from the middle of a session may start loaded.
+//! the baseline is no load whatever its distance (a load only raises conductance): beyond the
+//! contact limit it replaces the baseline at once as a new level (flagged like a remount, so the
+//! curvature is predicted anew): a remount to a lower-reading curvature, Velostat relaxed to a
+//! new unloaded level after its first presses, or a stream cut from the middle of a session
+//! that started loaded.
 //!
 //! Readings of a resistance (ohm) are judged in the log domain, where their noise is even. The
 //! published baseline is the level in the stream's own units.
@@ -59,8 +61,8 @@ pub struct DetectorConfig {
     pub log_domain: bool,
     /// Whether the readings rise with force (None: not known). When known, a steady level on
     /// the unloaded side of the baseline (no node more than the contact limit toward load)
-    /// cannot be a press: it replaces the baseline at once, however far it moved (a sensor
-    /// relaxing after its first press, or a stream that started in the middle of one).
+    /// cannot be a press: it replaces the baseline at once as a new level, however far it moved
+    /// (a remount, a sensor relaxing after its first press, a stream that started in one).
     pub rises: Option<bool>,
     /// Fixed overrides, for those who want them: the largest spread of a steady node, and the
     /// largest level move still counted as no load, in the judging domain's units (reading
@@ -367,33 +369,20 @@ impl BaselineDetector {
             return None;
         }
         let limit = |sigma: f64, sigmas: f64, fixed: Option<f64>| fixed.unwrap_or(sigma * sigmas);
-        let unloading = self.has_current
+        let beyond = |me: &Self, k: usize, v: f64| {
+            v > limit(me.sigma[k], me.cfg.contact_sigmas, me.cfg.contact_threshold)
+        };
+        // Steady and away from the baseline: a held press, or a new unloaded level.
+        let remount = self.has_current && (0..self.n).any(|k| beyond(self, k, self.shift[k]));
+        // Knowing the direction of a load, a level on the unloaded side cannot be a press: it
+        // is the new unloaded level at once (a remount, or a sensor that relaxed).
+        let unloading = remount
             && self.cfg.rises.is_some()
-            && (0..self.n).all(|k| {
-                self.toward_load[k]
-                    <= limit(
-                        self.sigma[k],
-                        self.cfg.contact_sigmas,
-                        self.cfg.contact_threshold,
-                    )
-            });
-        if unloading && (0..self.n).any(|k| self.shift[k] > self.sigma[k] * self.cfg.contact_sigmas)
-        {
-            // Moved away toward no load: publish the new level now.
+            && (0..self.n).all(|k| !beyond(self, k, self.toward_load[k]));
+        if unloading {
             self.last_emit_ns = None;
         }
-        let remount = !unloading
-            && self.has_current
-            && (0..self.n).any(|k| {
-                self.shift[k]
-                    > limit(
-                        self.sigma[k],
-                        self.cfg.contact_sigmas,
-                        self.cfg.contact_threshold,
-                    )
-            });
-        if remount {
-            // Steady but away from the baseline: a held press, or a remount.
+        if remount && !unloading {
             let too_far =
                 (0..self.n).any(|k| self.shift[k] > self.sigma[k] * self.cfg.max_rebaseline_sigmas);
             if too_far {

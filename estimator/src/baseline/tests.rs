@@ -331,9 +331,9 @@ fn knowing_the_direction_a_level_on_the_unloaded_side_replaces_the_baseline_at_o
         });
         let first = s.feed(&mut d, 3.0, 4.0, 0.0);
         assert!(!first.is_empty() && (first[0].mean[0] - 5000.0).abs() > 1000.0);
-        // Unloaded: the first steady window replaces it, published at once, not as a remount.
+        // Unloaded: the first steady window replaces it, published at once as a new level.
         let got = s.feed(&mut d, 1.5, 0.0, 0.0);
-        assert!(!got.is_empty() && !got[0].remount, "rises {rises}: {got:?}");
+        assert!(!got.is_empty() && got[0].remount, "rises {rises}: {got:?}");
         assert!((got[0].mean[0] - 5000.0).abs() < 2.0, "{}", got[0].mean[0]);
         // A steady press afterwards is still never a baseline.
         assert!(s.feed(&mut d, 10.0, 4.0, 0.0).is_empty());
