@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use taxel_formats::{Readout, ReadoutKind};
 use taxel_msgs::{
     force_flags, raw_flags, CurvatureEstimate, ForceSample, RawFrame, Stream, MAX_BLOCKS, MAX_NODES,
 };
@@ -164,15 +165,8 @@ impl Calibrator {
             flags |= force_flags::BASELINE_FROM_CALIBRATION;
         }
         let ro = cal.readout;
-        let base = &self.base_signal;
-        let node = |k: usize| ro.signal(frame.counts[k] as f64) - base[k];
-        let reading = |nodes: &[usize]| -> f64 {
-            if nodes.is_empty() {
-                (0..n).map(node).sum()
-            } else {
-                nodes.iter().filter(|&&k| k < n).map(|&k| node(k)).sum()
-            }
-        };
+        let (counts, base) = (&frame.counts[..n], &self.base_signal[..n]);
+        let reading = |nodes: &[usize]| block_reading(&ro, counts, base, nodes);
         let offset = cal.no_load_force_n;
         let s = reading(&cal.array.nodes);
         let e = cal.array.evaluate(s, c);
@@ -191,6 +185,31 @@ impl Calibrator {
             }
         }
         out.flags = flags;
+    }
+}
+
+/// S of a block (`nodes` empty: every node): the sum of `signal(raw) - signal(baseline)`. The
+/// amplifier's identity signal gets its own loop, so the hot path stays a plain sum.
+#[inline]
+fn block_reading(ro: &Readout, counts: &[f32], base: &[f64], nodes: &[usize]) -> f64 {
+    if ro.kind == ReadoutKind::Amplifier {
+        sum_signal(counts, base, nodes, |r| r)
+    } else {
+        sum_signal(counts, base, nodes, |r| ro.signal(r))
+    }
+}
+
+#[inline(always)]
+fn sum_signal(counts: &[f32], base: &[f64], nodes: &[usize], signal: impl Fn(f64) -> f64) -> f64 {
+    let node = |k: usize| signal(counts[k] as f64) - base[k];
+    if nodes.is_empty() {
+        (0..counts.len()).map(node).sum()
+    } else {
+        nodes
+            .iter()
+            .filter(|&&k| k < counts.len())
+            .map(|&k| node(k))
+            .sum()
     }
 }
 
