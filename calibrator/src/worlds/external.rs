@@ -5,11 +5,11 @@ use std::path::{Path, PathBuf};
 
 use taxel_formats::Recording;
 
-use super::zoo::{curvature_metrics, decided, train_curvature};
+use super::zoo::{curvature_metrics, train_curvature};
 use super::{ObjectsRow, RealRow, REAL_TRAIN_SHARE};
 use crate::evaluate::{evaluate, evaluate_with, Curvature, Headline};
 use crate::fit::{fit_calibration, FitOptions};
-use crate::table1::{self, LEVELS, OBJECTS};
+use crate::table1::{LEVELS, OBJECTS};
 
 /// World B with its README's protocol: the curvature model from `baselines_train`, tested on
 /// `baselines_test`; both calibrations from `calibration`; the five `object_*` recordings.
@@ -35,21 +35,7 @@ pub fn world_b(dir: &Path, out: &Path, epochs: usize) -> anyhow::Result<ObjectsR
         let r = evaluate(&rec, g, &model, &cals[0], &cals[1], &LEVELS)?;
         reports.push((name.to_string(), c, r));
     }
-    let (flat_n, curve_n, worst_n) = table1::averages(&reports);
-    let center = table1::block_averages(&reports, crate::evaluate::Headline::Center);
-    let (readout, form) = decided(&cals[0]);
-    Ok(ObjectsRow {
-        world: "world B".into(),
-        seed: None,
-        curvature_r2: m.r2,
-        curvature_mae_m1: m.mae_m1,
-        flat_n,
-        curve_n,
-        worst_n,
-        center,
-        readout,
-        form,
-    })
+    Ok(ObjectsRow::of("world B", None, &m, &reports, &cals[0]))
 }
 
 /// Every `*.csv.gz` with a force column in `dir`, in name order.
@@ -108,8 +94,11 @@ fn one_real(rec: &Recording, out: &Path) -> RealRow {
             &LEVELS,
             Headline::Array,
         )?;
-        let (readout, form) = decided(&cal);
-        Ok((readout, form, r.overall))
+        Ok((
+            cal.readout.to_string(),
+            cal.array.model.name().to_string(),
+            r.overall,
+        ))
     };
     match run() {
         Ok((readout, form, o)) => {

@@ -62,6 +62,32 @@ pub struct ObjectsRow {
     pub form: String,
 }
 
+impl ObjectsRow {
+    /// The row of one world: its curvature model's metrics, the object reports and the
+    /// curvature-aware calibration the fit wrote.
+    pub fn of(
+        world: &str,
+        seed: Option<u64>,
+        curvature: &taxel_estimator::model::Metrics,
+        reports: &[(String, f64, crate::evaluate::Report)],
+        cal: &crate::calibration::Calibration,
+    ) -> ObjectsRow {
+        let (flat_n, curve_n, worst_n) = crate::table1::averages(reports);
+        ObjectsRow {
+            world: world.to_string(),
+            seed,
+            curvature_r2: curvature.r2,
+            curvature_mae_m1: curvature.mae_m1,
+            flat_n,
+            curve_n,
+            worst_n,
+            center: crate::table1::block_averages(reports, crate::evaluate::Headline::Center),
+            readout: cal.readout.to_string(),
+            form: cal.array.model.name().to_string(),
+        }
+    }
+}
+
 /// One real recording: a flat calibration on the first 60 %, the last 40 % predicted.
 #[derive(Debug, Clone)]
 pub struct RealRow {

@@ -34,21 +34,8 @@ pub fn family(out: &Path, preset: &str, seed: u64, epochs: usize) -> anyhow::Res
     sensor.spread.build_seed = Some(synth::build_seed(seed, 0));
     let t1 = dir.join("table1");
     let t = table1::run(&t1, &model, &sensor, seed, |_| {})?;
-    let (flat_n, curve_n, worst_n) = table1::averages(&t.reports);
-    let center = table1::block_averages(&t.reports, crate::evaluate::Headline::Center);
-    let (readout, form) = decided(&Calibration::load(&t1.join("curvature.toml"))?);
-    Ok(ObjectsRow {
-        world: preset.to_string(),
-        seed: Some(seed),
-        curvature_r2: m.r2,
-        curvature_mae_m1: m.mae_m1,
-        flat_n,
-        curve_n,
-        worst_n,
-        center,
-        readout,
-        form,
-    })
+    let cal = Calibration::load(&t1.join("curvature.toml"))?;
+    Ok(ObjectsRow::of(preset, Some(seed), &m, &t.reports, &cal))
 }
 
 /// `taxel estimator train` with its defaults (readout auto, model auto).
@@ -87,9 +74,4 @@ pub fn curvature_metrics(model: &CurvatureModel, files: &[PathBuf]) -> anyhow::R
     let pred = model.predict_samples(&samples);
     let truth: Vec<f64> = samples.iter().map(|s| s.curvature_m1).collect();
     Ok(Metrics::of(&pred, &truth))
-}
-
-/// The readout and the whole array's form a fit decided.
-pub fn decided(cal: &Calibration) -> (String, String) {
-    (cal.readout.to_string(), cal.array.model.name().to_string())
 }
