@@ -35,7 +35,7 @@ pub struct Args {
 pub enum SourceArgs {
     /// The physics-based simulator (docs/sim.md).
     Sim(SimArgs),
-    /// Play back a recording CSV (schema in the README) or an exported MCAP, pacing frames by
+    /// Play back a recording CSV (schema in docs/formats.md) or an exported MCAP, pacing frames by
     /// their time stamps.
     Replay(ReplayArgs),
     /// The readout board over a serial port (docs/serial-protocol.md).
