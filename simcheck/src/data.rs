@@ -12,12 +12,20 @@ use taxel_sim::ReadoutKind;
 /// How a reading maps to conductance (siemens) and back.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum ReadoutMap {
-    /// `y = scale (1 + rg G)`, clipped at `rail` (codes).
-    Amplifier { scale: f64, rg: f64, rail: f64 },
+    /// `y = scale (1 + rg G)`, clipped at `rail` (codes); with an inverting front end
+    /// (`inverted`), `y = max - scale (1 + rg G)`, floored at 0.
+    Amplifier {
+        scale: f64,
+        rg: f64,
+        rail: f64,
+        inverted: bool,
+        max: f64,
+    },
     /// `y = 1 / G` (ohm).
     Resistance,
-    /// `y = max R / (R + r_ref)` (codes).
-    Divider { max: f64, r_ref: f64 },
+    /// `y = max R / (R + r_ref)` (codes); with the crossing on the low side (`rises`),
+    /// `y = max r_ref / (R + r_ref)`.
+    Divider { max: f64, r_ref: f64, rises: bool },
 }
 
 impl ReadoutMap {
@@ -29,12 +37,15 @@ impl ReadoutMap {
                     scale,
                     rg: r.rg_ohm,
                     rail: (r.vsat_v / r.adc_ref_v * r.max_code()).min(r.max_code()),
+                    inverted: r.inverted,
+                    max: r.max_code(),
                 }
             }
             ReadoutKind::Resistance => ReadoutMap::Resistance,
             ReadoutKind::Divider => ReadoutMap::Divider {
                 max: r.max_code(),
                 r_ref: r.r_ref_ohm,
+                rises: r.divider_rises,
             },
         }
     }
@@ -47,12 +58,36 @@ impl ReadoutMap {
         }
     }
 
+    /// Whether the reading rises with conductance (with force).
+    pub fn rises(&self) -> bool {
+        match *self {
+            ReadoutMap::Amplifier { inverted, .. } => !inverted,
+            ReadoutMap::Resistance => false,
+            ReadoutMap::Divider { rises, .. } => rises,
+        }
+    }
+
     /// Conductance (S) of a reading.
     pub fn to_g(&self, y: f64) -> f64 {
         match *self {
-            ReadoutMap::Amplifier { scale, rg, .. } => ((y / scale - 1.0) / rg).max(1e-12),
+            ReadoutMap::Amplifier {
+                scale,
+                rg,
+                inverted,
+                max,
+                ..
+            } => {
+                let y = if inverted { max - y } else { y };
+                ((y / scale - 1.0) / rg).max(1e-12)
+            }
             ReadoutMap::Resistance => 1.0 / y.max(0.5),
-            ReadoutMap::Divider { max, r_ref } => ((max / y.max(0.5) - 1.0) / r_ref).max(1e-12),
+            ReadoutMap::Divider { max, r_ref, rises } => {
+                if rises {
+                    (y.max(0.5) / (r_ref * (max - y).max(0.5))).max(1e-12)
+                } else {
+                    ((max / y.max(0.5) - 1.0) / r_ref).max(1e-12)
+                }
+            }
         }
     }
 
@@ -60,9 +95,28 @@ impl ReadoutMap {
     pub fn from_g(&self, g: f64) -> f64 {
         let g = g.max(1e-12);
         match *self {
-            ReadoutMap::Amplifier { scale, rg, rail } => (scale * (1.0 + rg * g)).min(rail),
+            ReadoutMap::Amplifier {
+                scale,
+                rg,
+                rail,
+                inverted,
+                max,
+            } => {
+                let a = (scale * (1.0 + rg * g)).min(rail);
+                if inverted {
+                    (max - a).max(0.0)
+                } else {
+                    a
+                }
+            }
             ReadoutMap::Resistance => 1.0 / g,
-            ReadoutMap::Divider { max, r_ref } => max / (1.0 + r_ref * g),
+            ReadoutMap::Divider { max, r_ref, rises } => {
+                if rises {
+                    max * r_ref * g / (1.0 + r_ref * g)
+                } else {
+                    max / (1.0 + r_ref * g)
+                }
+            }
         }
     }
 
@@ -80,14 +134,25 @@ impl ReadoutMap {
         match *self {
             ReadoutMap::Amplifier { scale, rg, .. } => scale * rg,
             ReadoutMap::Resistance => 1.0 / g,
-            ReadoutMap::Divider { max, r_ref } => max * r_ref / (1.0 + r_ref * g).powi(2),
+            ReadoutMap::Divider { max, r_ref, .. } => max * r_ref / (1.0 + r_ref * g).powi(2),
         }
     }
 
     /// True when `y` sits on the amplifier's rail (its value then says nothing).
     pub fn on_rail(&self, y: f64) -> bool {
         match *self {
-            ReadoutMap::Amplifier { rail, .. } => y >= rail - 0.5,
+            ReadoutMap::Amplifier {
+                rail,
+                inverted,
+                max,
+                ..
+            } => {
+                if inverted {
+                    y <= max - rail + 0.5
+                } else {
+                    y >= rail - 0.5
+                }
+            }
             _ => false,
         }
     }
@@ -221,19 +286,16 @@ impl Dataset {
             }
             None => (vec![0; rec.len()], 1),
         };
-        // Does the reading rise or fall with force? Compare the mean of the summed reading at
-        // the top and bottom force quartiles.
+        // Does the reading rise or fall with force? The loaded frames against the unloaded ones
+        // (the same test as the calibration tools'; a mostly-unloaded recording is read the
+        // right way round).
         let n = rec.n_nodes;
         let sums: Vec<f64> = (0..rec.len()).map(|i| rec.sample(i).iter().sum()).collect();
-        let mut order: Vec<usize> = (0..rec.len()).collect();
-        order.sort_by(|&a, &b| force[a].total_cmp(&force[b]));
-        let q = (rec.len() / 4).max(1);
-        let low: f64 = order[..q].iter().map(|&i| sums[i]).sum::<f64>() / q as f64;
-        let high: f64 = order[rec.len() - q..].iter().map(|&i| sums[i]).sum::<f64>() / q as f64;
-        let rising = high >= low;
+        let rising = taxel_formats::readout::direction(&sums, &force)
+            != Some(taxel_formats::readout::Direction::Falls);
         let mut r = readout.clone();
         let mut note = None;
-        let model_rising = r.kind == ReadoutKind::Amplifier;
+        let model_rising = ReadoutMap::from_readout(&r).rises();
         if rising != model_rising {
             if readout_given {
                 note = Some(format!(
@@ -248,6 +310,8 @@ impl Dataset {
                 } else {
                     ReadoutKind::Resistance
                 };
+                r.inverted = false;
+                r.divider_rises = false;
                 note = Some(format!(
                     "the readings {} with force: readout set to {:?}",
                     if rising { "rise" } else { "fall" },
@@ -301,26 +365,49 @@ mod tests {
 
     #[test]
     fn readout_maps_round_trip() {
+        let amp = |inverted| ReadoutMap::Amplifier {
+            scale: 102.3,
+            rg: 5600.0,
+            rail: 1023.0,
+            inverted,
+            max: 1023.0,
+        };
+        let div = |rises| ReadoutMap::Divider {
+            max: 1023.0,
+            r_ref: 1000.0,
+            rises,
+        };
         let maps = [
-            ReadoutMap::Amplifier {
-                scale: 102.3,
-                rg: 5600.0,
-                rail: 1023.0,
-            },
-            ReadoutMap::Resistance,
-            ReadoutMap::Divider {
-                max: 1023.0,
-                r_ref: 1000.0,
-            },
+            (amp(false), true),
+            (amp(true), false),
+            (ReadoutMap::Resistance, false),
+            (div(false), false),
+            (div(true), true),
         ];
-        for m in maps {
+        for (m, rises) in maps {
+            assert_eq!(m.rises(), rises, "{m:?}");
             for g in [1e-5, 1e-4, 1e-3] {
                 let y = m.from_g(g);
                 assert!(
                     (m.to_g(y) - g).abs() < 1e-9 * g.max(1.0) + 1e-12,
                     "{m:?} {g}"
                 );
+                // The reading moves the way the map says it does.
+                assert_eq!(m.from_g(2.0 * g) > y, rises, "{m:?} {g}");
             }
         }
+        // The simulator's flags reach the map.
+        let mut r = taxel_sim::presets::preset("zoo-pow")
+            .expect("preset")
+            .readout;
+        assert!(!ReadoutMap::from_readout(&r).rises());
+        r.inverted = false;
+        assert!(ReadoutMap::from_readout(&r).rises());
+        let mut r = taxel_sim::presets::preset("zoo-log")
+            .expect("preset")
+            .readout;
+        assert!(!ReadoutMap::from_readout(&r).rises());
+        r.divider_rises = true;
+        assert!(ReadoutMap::from_readout(&r).rises());
     }
 }

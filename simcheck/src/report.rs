@@ -13,7 +13,7 @@ use taxel_plot::{Chart, Mark, Series};
 use taxel_sim::model::{Creep, Crosstalk, Hysteresis, NodeFactors, ScanSkew, ThermalDrift};
 use taxel_sim::SensorModel;
 
-use crate::data::Dataset;
+use crate::data::{Dataset, ReadoutMap};
 use crate::diagnose::Diagnosis;
 use crate::model::{Config, Thermal};
 
@@ -30,6 +30,8 @@ pub fn extended_model(
     m.rows = ds.rows;
     m.cols = ds.cols;
     m.readout.kind = ds.map.kind();
+    m.readout.inverted = matches!(ds.map, ReadoutMap::Amplifier { inverted: true, .. });
+    m.readout.divider_rises = matches!(ds.map, ReadoutMap::Divider { rises: true, .. });
     m.material.exponent = cfg.exponent;
     m.material.r_floor_ohm = if cfg.sat_in_base || cfg.saturation {
         cfg.r_floor_ohm
