@@ -80,6 +80,8 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
         "\"curve_mae_n\": ",
         "\"curve_sd_n\": ",
         "\"target_n\": 8",
+        "\"hold_drift\": {\"holds\": ",
+        "\"flat_drift_n\": ",
     ] {
         assert!(json.contains(key), "{key} in {json}");
     }

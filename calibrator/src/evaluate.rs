@@ -27,6 +27,7 @@ use taxel_formats::{Geometry, Recording};
 use taxel_msgs::{sensor_id_bytes, source, ForceSample, RawFrame, MAX_NODES};
 
 use crate::calibration::Calibration;
+use crate::holds::Hold;
 use crate::reload::Loaded;
 use crate::run::Calibrator;
 
@@ -100,6 +101,9 @@ pub struct BlockScores {
     pub overall_flat: Option<Overall>,
     /// Calibrated force per frame (curvature-aware, flat); NaN where not scored.
     pub forces: Vec<(f32, f32)>,
+    /// Every hold of the reference and the drift through it of the curvature-aware, then the
+    /// flat estimate (`holds`).
+    pub holds: Vec<Hold>,
 }
 
 /// The result for one recording.
@@ -235,12 +239,15 @@ fn score(
     }
     let curve: Vec<f32> = forces.iter().map(|f| f.0).collect();
     let flat: Vec<f32> = forces.iter().map(|f| f.1).collect();
+    let wide = |v: &[f32]| -> Vec<f64> { v.iter().map(|&x| x as f64).collect() };
+    let holds = crate::holds::holds(&rec.t_s, reference, &[&wide(&curve), &wide(&flat)]);
     BlockScores {
         block,
         levels: results,
         overall: overall(&curve, reference),
         overall_flat: has_flat.then(|| overall(&flat, reference)),
         forces,
+        holds,
     }
 }
 
@@ -440,27 +447,62 @@ fn overall_json(o: &Overall) -> String {
 }
 
 /// The JSON object of `taxel calibrator eval --json`.
+/// `{"holds": n, "mean_abs_n": …, "flat_mean_abs_n": …, "per_hold": [{"t_start_s": …,
+/// "seconds": …, "force_n": …, "drift_n": …, "flat_drift_n": …}, …]}` (null for a missing value).
+fn holds_json(holds: &[Hold]) -> String {
+    let num = |x: f64| {
+        if x.is_finite() {
+            format!("{x:.4}")
+        } else {
+            "null".into()
+        }
+    };
+    let per: Vec<String> = holds
+        .iter()
+        .map(|h| {
+            format!(
+                "{{\"t_start_s\": {:.3}, \"seconds\": {:.3}, \"force_n\": {:.4}, \"drift_n\": {}, \"flat_drift_n\": {}}}",
+                h.t_start_s,
+                h.seconds,
+                h.force_n,
+                num(h.drift_n.first().copied().unwrap_or(f64::NAN)),
+                num(h.drift_n.get(1).copied().unwrap_or(f64::NAN))
+            )
+        })
+        .collect();
+    format!(
+        "{{\"holds\": {}, \"mean_abs_n\": {}, \"flat_mean_abs_n\": {}, \"per_hold\": [{}]}}",
+        holds.len(),
+        num(crate::holds::mean_abs_drift(holds, 0)),
+        num(crate::holds::mean_abs_drift(holds, 1)),
+        per.join(", ")
+    )
+}
+
 pub fn json(r: &Report) -> String {
     let blocks: Vec<String> = r
         .blocks
         .iter()
         .map(|b| {
             format!(
-                "\"{}\": {{\"levels\": {}, \"overall\": {}, \"overall_flat\": {}}}",
+                "\"{}\": {{\"levels\": {}, \"overall\": {}, \"overall_flat\": {}, \"hold_drift\": {}}}",
                 b.block.name(),
                 levels_json(&b.levels),
                 overall_json(&b.overall),
                 b.overall_flat
                     .as_ref()
-                    .map_or("null".to_string(), overall_json)
+                    .map_or("null".to_string(), overall_json),
+                holds_json(&b.holds)
             )
         })
         .collect();
+    let head = r.blocks.iter().find(|b| b.block == r.headline);
     format!(
-        "{{\"curvature_pred_m1\": {:.3}, \"levels\": {}, \"overall\": {}, \"headline\": \"{}\", \"curvature_source\": \"{}\", \"blocks\": {{{}}}}}",
+        "{{\"curvature_pred_m1\": {:.3}, \"levels\": {}, \"overall\": {}, \"hold_drift\": {}, \"headline\": \"{}\", \"curvature_source\": \"{}\", \"blocks\": {{{}}}}}",
         r.curvature_pred_m1,
         levels_json(&r.levels),
         overall_json(&r.overall),
+        head.map_or("null".to_string(), |b| holds_json(&b.holds)),
         r.headline.name(),
         if r.curvature_given { "given" } else { "predicted" },
         blocks.join(", ")

@@ -8,6 +8,7 @@ pub mod cli;
 pub mod evaluate;
 pub mod fit;
 pub mod forms;
+pub mod holds;
 pub mod plots;
 pub mod reload;
 pub mod run;
