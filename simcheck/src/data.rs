@@ -291,8 +291,18 @@ impl Dataset {
         // right way round).
         let n = rec.n_nodes;
         let sums: Vec<f64> = (0..rec.len()).map(|i| rec.sample(i).iter().sum()).collect();
-        let rising = taxel_formats::readout::direction(&sums, &force)
-            != Some(taxel_formats::readout::Direction::Falls);
+        let rising = match taxel_formats::readout::direction(&sums, &force) {
+            Some(d) => d == taxel_formats::readout::Direction::Rises,
+            // No spread in force (a constant load): the top force quartile against the bottom
+            // one, as the only hint there is.
+            None => {
+                let mut order: Vec<usize> = (0..rec.len()).collect();
+                order.sort_by(|&a, &b| force[a].total_cmp(&force[b]));
+                let q = (rec.len() / 4).max(1);
+                let mean = |ix: &[usize]| ix.iter().map(|&i| sums[i]).sum::<f64>() / q as f64;
+                mean(&order[rec.len() - q..]) >= mean(&order[..q])
+            }
+        };
         let mut r = readout.clone();
         let mut note = None;
         let model_rising = ReadoutMap::from_readout(&r).rises();
