@@ -29,6 +29,24 @@ fn calibrator(text: &str) -> Calibrator {
     c
 }
 
+/// A shape-free calibration read through a 12-bit divider.
+const MONOTONE: &str = r#"
+id = "bench-monotone"
+version = 1
+rows = 4
+cols = 4
+readout = { kind = "divider", full_scale = 4095.0, rises = true }
+[array]
+name = "array"
+model = { form = "monotone", curvature_m1 = [0, 40, 80], f = [0, 2, 5, 10, 20], s = [[0, 150, 350, 650, 1250], [0, 130, 300, 560, 1100], [0, 110, 250, 470, 950]] }
+range = { s = [0, 1250], curvature_m1 = [0, 80] }
+[[block]]
+name = "center"
+nodes = [5, 6, 9, 10]
+model = { form = "monotone", curvature_m1 = [0, 40, 80], f = [0, 2, 5, 10, 20], s = [[0, 150, 350, 650, 1250], [0, 130, 300, 560, 1100], [0, 110, 250, 470, 950]] }
+range = { s = [0, 1250], curvature_m1 = [0, 80] }
+"#;
+
 fn bench(c: &mut Criterion) {
     let mut frame = RawFrame::ZERO;
     frame.rows = 4;
@@ -41,11 +59,11 @@ fn bench(c: &mut Criterion) {
         };
     }
     let mut out = ForceSample::ZERO;
-    let poly = calibrator(include_str!("../calibrations/sim-default.toml"));
+    let mut poly = calibrator(include_str!("../calibrations/sim-default.toml"));
     c.bench_function("calibration/apply paper form (2 blocks)", |b| {
         b.iter(|| poly.apply(black_box(&frame), 0, black_box(&mut out)))
     });
-    let physics = calibrator(
+    let mut physics = calibrator(
         r#"
 id = "bench-physics"
 version = 1
@@ -66,27 +84,24 @@ range = { s = [0, 1250], curvature_m1 = [0, 100] }
         b.iter(|| physics.apply(black_box(&frame), 0, black_box(&mut out)))
     });
     // The shape-free form, read through a divider (a signal transform per node).
-    let monotone = calibrator(
-        r#"
-id = "bench-monotone"
-version = 1
-rows = 4
-cols = 4
-readout = { kind = "divider", full_scale = 4095.0, rises = true }
-[array]
-name = "array"
-model = { form = "monotone", curvature_m1 = [0, 40, 80], f = [0, 2, 5, 10, 20], s = [[0, 150, 350, 650, 1250], [0, 130, 300, 560, 1100], [0, 110, 250, 470, 950]] }
-range = { s = [0, 1250], curvature_m1 = [0, 80] }
-[[block]]
-name = "center"
-nodes = [5, 6, 9, 10]
-model = { form = "monotone", curvature_m1 = [0, 40, 80], f = [0, 2, 5, 10, 20], s = [[0, 150, 350, 650, 1250], [0, 130, 300, 560, 1100], [0, 110, 250, 470, 950]] }
-range = { s = [0, 1250], curvature_m1 = [0, 80] }
-"#,
-    );
+    let mut monotone = calibrator(MONOTONE);
     c.bench_function(
         "calibration/apply monotone form, divider readout (2 blocks)",
         |b| b.iter(|| monotone.apply(black_box(&frame), 0, black_box(&mut out))),
+    );
+    // The same with creep terms (four time constants per block), frames 10 ms apart.
+    let range = "range = { s = [0, 1250], curvature_m1 = [0, 80] }";
+    let creep = "creep = { tau_s = [0.5, 2, 8, 128], share = [0.02, 0.06, 0.06, 0.01] }";
+    let mut creeping = calibrator(&MONOTONE.replace(range, &format!("{range}\n{creep}")));
+    let mut f = frame;
+    c.bench_function(
+        "calibration/apply monotone form, divider readout, creep (2 blocks)",
+        |b| {
+            b.iter(|| {
+                f.t_capture_ns += 10_000_000;
+                creeping.apply(black_box(&f), 0, black_box(&mut out))
+            })
+        },
     );
 }
 

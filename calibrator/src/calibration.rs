@@ -15,6 +15,8 @@ use serde::{Deserialize, Serialize};
 use taxel_formats::Readout;
 use taxel_msgs::MAX_BLOCKS;
 
+use crate::dynamics::{Creep, CreepSpec};
+
 pub use crate::forms::{validate_model, Model, ModelSpec, Term};
 
 /// Why a calibration file was refused.
@@ -54,6 +56,9 @@ pub struct BlockSpec {
     pub nodes: Option<Vec<usize>>,
     pub model: ModelSpec,
     pub range: RangeSpec,
+    /// Optional creep of the reading under a held load (docs/formats.md; `dynamics`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub creep: Option<CreepSpec>,
 }
 
 /// A calibration file.
@@ -105,6 +110,8 @@ pub struct Block {
     /// Node indices; empty means the whole array.
     pub nodes: Vec<usize>,
     pub model: Model,
+    /// Creep of the reading, corrected before the model (None: static).
+    pub creep: Option<Creep>,
     s_range: [f64; 2],
     c_range: [f64; 2],
     s_max_by_c: Vec<[f64; 2]>,
@@ -245,10 +252,16 @@ fn validate_block(spec: &BlockSpec, n_nodes: usize, whole_array: bool) -> Result
         }
         prev_c = p[0];
     }
+    let creep = spec
+        .creep
+        .as_ref()
+        .map(|c| Creep::from_spec(name, c))
+        .transpose()?;
     let block = Block {
         name: name.clone(),
         nodes,
         model,
+        creep,
         s_range: r.s,
         c_range: r.curvature_m1,
         s_max_by_c: r.s_max_by_curvature.clone(),

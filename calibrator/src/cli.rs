@@ -142,6 +142,10 @@ pub struct FitArgs {
     /// tenth of the reference range.
     #[arg(long)]
     pub accept_poor_fit: bool,
+    /// Characterisation recordings with a reference force (long holds, sweeps): fit creep
+    /// terms for every block on them, kept where they lower the held-out error.
+    #[arg(long, num_args = 1..)]
+    pub dynamics: Vec<PathBuf>,
     /// Calibration id written into the file.
     #[arg(long, default_value = "fitted")]
     pub id: String,
@@ -241,7 +245,14 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
         accept_poor_fit: a.accept_poor_fit,
         ..FitOptions::new(&a.id, a.flat)
     };
-    let (text, cal, report) = fit_calibration(&recs, &opts).config_err()?;
+    let (mut text, mut cal, mut report) = fit_calibration(&recs, &opts).config_err()?;
+    if !a.dynamics.is_empty() {
+        let mut chars = Vec::new();
+        for p in &a.dynamics {
+            chars.push(Recording::read(p).config_err()?);
+        }
+        (text, cal) = crate::fit::with_dynamics(&text, &cal, &chars, &mut report).config_err()?;
+    }
     for line in &report {
         println!("{line}");
     }

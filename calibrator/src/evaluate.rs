@@ -24,7 +24,7 @@ use taxel_estimator::baseline::DetectorConfig;
 use taxel_estimator::estimate::Estimator;
 use taxel_estimator::model::CurvatureModel;
 use taxel_formats::{Geometry, Recording};
-use taxel_msgs::{sensor_id_bytes, source, ForceSample, RawFrame, MAX_NODES};
+use taxel_msgs::{sensor_id_bytes, source, CurvatureEstimate, ForceSample, RawFrame, MAX_NODES};
 
 use crate::calibration::Calibration;
 use crate::holds::Hold;
@@ -79,6 +79,8 @@ pub struct LevelResult {
     pub flat_sd_n: f64,
     pub curve_mae_n: f64,
     pub curve_sd_n: f64,
+    /// The curvature-aware calibration without its dynamic terms (NaN when it has none).
+    pub static_curve_mae_n: f64,
 }
 
 /// Error over every scored frame with a reference of at least `OVERALL_MIN_N`.
@@ -206,23 +208,24 @@ fn score(
     rec: &Recording,
     reference: &[f64],
     block: Headline,
-    forces: Vec<(f32, f32)>,
+    (forces, statics): (Vec<(f32, f32)>, Vec<f32>),
     levels: &[f64],
-    has_flat: bool,
+    has: Has,
 ) -> BlockScores {
     let mut results = Vec::new();
     for &target in levels {
-        let (mut ef, mut ec) = (Vec::new(), Vec::new());
+        let (mut ef, mut ec, mut es) = (Vec::new(), Vec::new(), Vec::new());
         for w in level_windows(&rec.t_s, reference, target, LEVEL_TOLERANCE_N, LEVEL_MIN_S) {
             for i in w {
                 let (c, f) = forces[i];
                 if c.is_finite() {
                     ec.push((c as f64 - reference[i]).abs());
                     ef.push((f as f64 - reference[i]).abs());
+                    es.push((statics[i] as f64 - reference[i]).abs());
                 }
             }
         }
-        let (fm, fs) = if has_flat {
+        let (fm, fs) = if has.flat {
             mae_sd(&ef)
         } else {
             (f64::NAN, f64::NAN)
@@ -235,20 +238,113 @@ fn score(
             flat_sd_n: fs,
             curve_mae_n: cm,
             curve_sd_n: cs,
+            static_curve_mae_n: if has.statik { mae_sd(&es).0 } else { f64::NAN },
         });
     }
     let curve: Vec<f32> = forces.iter().map(|f| f.0).collect();
     let flat: Vec<f32> = forces.iter().map(|f| f.1).collect();
     let wide = |v: &[f32]| -> Vec<f64> { v.iter().map(|&x| x as f64).collect() };
-    let holds = crate::holds::holds(&rec.t_s, reference, &[&wide(&curve), &wide(&flat)]);
+    let holds = crate::holds::holds(
+        &rec.t_s,
+        reference,
+        &[&wide(&curve), &wide(&flat), &wide(&statics)],
+    );
     BlockScores {
         block,
         levels: results,
         overall: overall(&curve, reference),
-        overall_flat: has_flat.then(|| overall(&flat, reference)),
+        overall_flat: has.flat.then(|| overall(&flat, reference)),
         forces,
         holds,
     }
+}
+
+/// The calibrators an evaluation runs side by side on every frame: the curvature-aware one,
+/// the flat one (at curvature 0), and the curvature-aware one without its dynamic terms (when
+/// it has any, to show what they change).
+struct Side {
+    curve: Calibrator,
+    flat: Option<Calibrator>,
+    statik: Option<Calibrator>,
+    out: [ForceSample; 3],
+}
+
+impl Side {
+    fn new(curve: &Calibration, flat: Option<&Calibration>) -> Side {
+        let wrap = |c: &Calibration| {
+            Calibrator::new(
+                Arc::new(Loaded {
+                    calibration: c.clone(),
+                    generation: 1,
+                }),
+                f64::INFINITY,
+            )
+        };
+        let dynamic = std::iter::once(&curve.array)
+            .chain(&curve.blocks)
+            .any(|b| b.creep.is_some());
+        Side {
+            curve: wrap(curve),
+            flat: flat.map(wrap),
+            statik: dynamic.then(|| {
+                let mut c = wrap(curve);
+                c.set_dynamics(false);
+                c
+            }),
+            out: [ForceSample::ZERO; 3],
+        }
+    }
+
+    fn set_known(&mut self, c: f64) {
+        self.curve.set_known_curvature(c);
+        if let Some(s) = self.statik.as_mut() {
+            s.set_known_curvature(c);
+        }
+        if let Some(f) = self.flat.as_mut() {
+            f.set_known_curvature(0.0);
+        }
+    }
+
+    fn set_curvature(&mut self, e: &CurvatureEstimate) {
+        self.curve.set_curvature(e);
+        if let Some(s) = self.statik.as_mut() {
+            s.set_curvature(e);
+        }
+        if let Some(f) = self.flat.as_mut() {
+            let mut flat_est = *e;
+            flat_est.curvature_m1 = 0.0;
+            f.set_curvature(&flat_est);
+        }
+    }
+
+    /// (curvature-aware, flat, static) force of the whole array and of the central block; NaN
+    /// for a calibrator that is not there.
+    fn apply(&mut self, frame: &RawFrame) -> [(f32, f32, f32); 2] {
+        let t = frame.t_capture_ns;
+        let [oc, of, os] = &mut self.out;
+        self.curve.apply(frame, t, oc);
+        if let Some(f) = self.flat.as_mut() {
+            f.apply(frame, t, of);
+        }
+        if let Some(s) = self.statik.as_mut() {
+            s.apply(frame, t, os);
+        }
+        [Headline::Array, Headline::Center].map(|b| {
+            let pick = |o: &ForceSample, on: bool| if on { force_of(o, b) } else { f32::NAN };
+            (
+                force_of(&self.out[0], b),
+                pick(&self.out[1], self.flat.is_some()),
+                pick(&self.out[2], self.statik.is_some()),
+            )
+        })
+    }
+}
+
+/// Which of the side calibrators were there.
+#[derive(Debug, Clone, Copy)]
+struct Has {
+    flat: bool,
+    statik: bool,
 }
 
 /// Runs the protocol. `flat` is optional when the curvature is given.
@@ -291,64 +387,37 @@ pub fn evaluate_with(
     {
         estimator.seed_baseline(&curve.no_load_reading);
     }
-    let wrap = |c: &Calibration| {
-        Calibrator::new(
-            Arc::new(Loaded {
-                calibration: c.clone(),
-                generation: 1,
-            }),
-            f64::INFINITY,
-        )
-    };
-    let mut cal_curve = wrap(curve);
-    let mut cal_flat = flat.map(wrap);
+    let mut side = Side::new(curve, flat);
     if let Some(c) = given {
         // Until the first no-load window, the given curvature with the file's no-load reading.
-        cal_curve.set_known_curvature(c);
-        if let Some(f) = cal_flat.as_mut() {
-            f.set_known_curvature(0.0);
-        }
+        side.set_known(c);
     }
     let mut estimate: Option<(f64, f64, usize)> = given.map(|c| (c, 0.0, 0));
     let mut seen_estimate = false;
     let n = rec.len();
     let mut forces = [Vec::with_capacity(n), Vec::with_capacity(n)];
-    let (mut out_c, mut out_f) = (ForceSample::ZERO, ForceSample::ZERO);
+    let mut statics = [Vec::with_capacity(n), Vec::with_capacity(n)];
     for (i, frame) in frames(rec, g).enumerate() {
         if let Some(e) = estimator.push(&frame)? {
             // The first estimate serves from the frame that completed its window on (live,
             // that frame gets it or not depending on which process handles it first). With a
             // predicted curvature only the first estimate is used, as in the protocol.
             if given.is_some() || !seen_estimate {
-                cal_curve.set_curvature(e);
-                if let Some(f) = cal_flat.as_mut() {
-                    let mut flat_est = *e;
-                    flat_est.curvature_m1 = 0.0;
-                    f.set_curvature(&flat_est);
-                }
+                side.set_curvature(e);
                 if given.is_none() {
                     estimate = Some((e.curvature_m1 as f64, e.curvature_sd_m1 as f64, i));
                 }
                 seen_estimate = true;
             }
         }
-        if estimate.is_none() {
-            for v in forces.iter_mut() {
-                v.push((f32::NAN, f32::NAN));
-            }
-            continue;
-        }
-        cal_curve.apply(&frame, frame.t_capture_ns, &mut out_c);
-        if let Some(f) = cal_flat.as_ref() {
-            f.apply(&frame, frame.t_capture_ns, &mut out_f);
-        }
-        for (k, b) in [Headline::Array, Headline::Center].into_iter().enumerate() {
-            let flat_force = if cal_flat.is_some() {
-                force_of(&out_f, b)
-            } else {
-                f32::NAN
-            };
-            forces[k].push((force_of(&out_c, b), flat_force));
+        let per_block = if estimate.is_none() {
+            [(f32::NAN, f32::NAN, f32::NAN); 2]
+        } else {
+            side.apply(&frame)
+        };
+        for (k, (c, f, st)) in per_block.into_iter().enumerate() {
+            forces[k].push((c, f));
+            statics[k].push(st);
         }
     }
     let Some((c_pred, c_sd, mut at)) = estimate else {
@@ -367,10 +436,28 @@ pub fn evaluate_with(
         })?;
     }
     let [array, center] = forces;
-    let has_flat = flat.is_some();
+    let [array_static, center_static] = statics;
+    let has = Has {
+        flat: flat.is_some(),
+        statik: side.statik.is_some(),
+    };
     let blocks = vec![
-        score(rec, reference, Headline::Array, array, levels, has_flat),
-        score(rec, reference, Headline::Center, center, levels, has_flat),
+        score(
+            rec,
+            reference,
+            Headline::Array,
+            (array, array_static),
+            levels,
+            has,
+        ),
+        score(
+            rec,
+            reference,
+            Headline::Center,
+            (center, center_static),
+            levels,
+            has,
+        ),
     ];
     let head = blocks
         .iter()
@@ -424,12 +511,13 @@ fn levels_json(levels: &[LevelResult]) -> String {
         .iter()
         .map(|l| {
             format!(
-                "{{\"target_n\": {}, \"flat_mae_n\": {}, \"flat_sd_n\": {}, \"curve_mae_n\": {}, \"curve_sd_n\": {}, \"frames\": {}}}",
+                "{{\"target_n\": {}, \"flat_mae_n\": {}, \"flat_sd_n\": {}, \"curve_mae_n\": {}, \"curve_sd_n\": {}, \"static_curve_mae_n\": {}, \"frames\": {}}}",
                 l.target_n,
                 num(l.flat_mae_n, l.n),
                 num(l.flat_sd_n, l.n),
                 num(l.curve_mae_n, l.n),
                 num(l.curve_sd_n, l.n),
+                num(l.static_curve_mae_n, l.n),
                 l.n
             )
         })
@@ -461,20 +549,22 @@ fn holds_json(holds: &[Hold]) -> String {
         .iter()
         .map(|h| {
             format!(
-                "{{\"t_start_s\": {:.3}, \"seconds\": {:.3}, \"force_n\": {:.4}, \"drift_n\": {}, \"flat_drift_n\": {}}}",
+                "{{\"t_start_s\": {:.3}, \"seconds\": {:.3}, \"force_n\": {:.4}, \"drift_n\": {}, \"flat_drift_n\": {}, \"static_drift_n\": {}}}",
                 h.t_start_s,
                 h.seconds,
                 h.force_n,
                 num(h.drift_n.first().copied().unwrap_or(f64::NAN)),
-                num(h.drift_n.get(1).copied().unwrap_or(f64::NAN))
+                num(h.drift_n.get(1).copied().unwrap_or(f64::NAN)),
+                num(h.drift_n.get(2).copied().unwrap_or(f64::NAN))
             )
         })
         .collect();
     format!(
-        "{{\"holds\": {}, \"mean_abs_n\": {}, \"flat_mean_abs_n\": {}, \"per_hold\": [{}]}}",
+        "{{\"holds\": {}, \"mean_abs_n\": {}, \"flat_mean_abs_n\": {}, \"static_mean_abs_n\": {}, \"per_hold\": [{}]}}",
         holds.len(),
         num(crate::holds::mean_abs_drift(holds, 0)),
         num(crate::holds::mean_abs_drift(holds, 1)),
+        num(crate::holds::mean_abs_drift(holds, 2)),
         per.join(", ")
     )
 }

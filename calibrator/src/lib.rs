@@ -5,6 +5,7 @@
 
 pub mod calibration;
 pub mod cli;
+pub mod dynamics;
 pub mod evaluate;
 pub mod fit;
 pub mod forms;

@@ -17,6 +17,7 @@ use taxel_runtime::{now_ns, Shutdown};
 use tracing::{debug, error, info};
 
 use crate::calibration::Calibration;
+use crate::dynamics::CreepState;
 use crate::reload::{Loaded, Watcher};
 
 /// Calibrator settings.
@@ -55,6 +56,12 @@ pub struct Calibrator {
     has_base: bool,
     curvature: Option<(f32, u64, u32)>,
     stale_ns: u64,
+    /// Creep states of the whole array (0) and of each block (1..), and the capture time of
+    /// the last frame they were advanced at.
+    creep: [CreepState; 1 + MAX_BLOCKS],
+    last_t_ns: Option<u64>,
+    /// Apply the file's dynamic terms (off: the static calibration alone, for comparison).
+    dynamics: bool,
 }
 
 impl Calibrator {
@@ -66,6 +73,9 @@ impl Calibrator {
             has_base: false,
             curvature: None,
             stale_ns: (curvature_stale_s.max(0.0) * 1e9) as u64,
+            creep: [[0.0; crate::dynamics::MAX_TERMS]; 1 + MAX_BLOCKS],
+            last_t_ns: None,
+            dynamics: true,
         };
         c.refresh_base();
         c
@@ -108,7 +118,14 @@ impl Calibrator {
         self.curvature = Some((c as f32, 0, 0));
     }
 
-    /// Serves a (re)loaded calibration from the next frame on; the baseline carries over.
+    /// Applies the file's dynamic terms (the default) or only its static model.
+    pub fn set_dynamics(&mut self, on: bool) {
+        self.dynamics = on;
+    }
+
+    /// Serves a (re)loaded calibration from the next frame on; the baseline carries over, and
+    /// so do the creep states (block by block, term by term), so a reload starts the new terms
+    /// from the current state without a jump.
     pub fn set_loaded(&mut self, loaded: Arc<Loaded>) {
         self.loaded = loaded;
         self.refresh_base();
@@ -119,7 +136,11 @@ impl Calibrator {
     }
 
     /// Computes the forces of `frame` into `out` (all fields but `t_publish_ns`).
-    pub fn apply(&self, frame: &RawFrame, now_ns: u64, out: &mut ForceSample) {
+    pub fn apply(&mut self, frame: &RawFrame, now_ns: u64, out: &mut ForceSample) {
+        let dt_s = self
+            .last_t_ns
+            .map_or(0.0, |t| frame.t_capture_ns.saturating_sub(t) as f64 * 1e-9);
+        self.last_t_ns = Some(frame.t_capture_ns);
         let cal = &self.loaded.calibration;
         out.seq = frame.seq;
         out.t_capture_ns = frame.t_capture_ns;
@@ -168,8 +189,13 @@ impl Calibrator {
         let (counts, base) = (&frame.counts[..n], &self.base_signal[..n]);
         let reading = |nodes: &[usize]| block_reading(&ro, counts, base, nodes);
         let offset = cal.no_load_force_n;
+        let dynamics = self.dynamics;
+        let mut instantaneous = |k: usize, b: &crate::calibration::Block, s: f64| match &b.creep {
+            Some(cr) if dynamics => cr.step(&mut self.creep[k], s, dt_s),
+            _ => s,
+        };
         let s = reading(&cal.array.nodes);
-        let e = cal.array.evaluate(s, c);
+        let e = cal.array.evaluate(instantaneous(0, &cal.array, s), c);
         out.total_reading = s as f32;
         out.total_force_n = (offset + e.force_n) as f32;
         if e.out_of_range {
@@ -177,7 +203,7 @@ impl Calibrator {
         }
         for (i, b) in cal.blocks.iter().take(MAX_BLOCKS).enumerate() {
             let s = reading(&b.nodes);
-            let e = b.evaluate(s, c);
+            let e = b.evaluate(instantaneous(i + 1, b, s), c);
             out.block_reading[i] = s as f32;
             out.block_force_n[i] = (offset + e.force_n) as f32;
             if e.out_of_range {

@@ -5,6 +5,7 @@
 //! fixtures whose reading stops rising with force left out, the declared range (`range`), a
 //! refusal when the fit cannot be right, and the file's text (`render`).
 
+mod creep;
 mod monotone;
 mod observe;
 mod physics;
@@ -17,6 +18,7 @@ use taxel_formats::readout::{candidates, direction, Direction, ValueShape};
 use taxel_formats::{Readout, ReadoutKind, Recording};
 
 use crate::calibration::{validate_model, BlockSpec, Calibration, CalibrationFile, ModelSpec};
+pub use creep::{add_creep, CreepFit, TAU_GRID_S};
 pub use monotone::{check_fixture, fit_monotone, fixtures, NonMonotone};
 pub use observe::{observations, trials, Baselines, Observation, TrialBase};
 pub use physics::fit_physics;
@@ -366,9 +368,28 @@ fn fit_block(
             nodes: (!nodes.is_empty()).then(|| nodes.to_vec()),
             model: spec,
             range,
+            creep: None,
         },
         form,
     ))
+}
+
+/// The comment at the top of a fitted file.
+pub const FIT_COMMENT: &str = "Fitted by `taxel calibrator fit`. S = block sum of signal(raw) - signal(no-load baseline),\nwhere signal() follows the readout (the raw counts for the paper's amplifier);\nC = curvature in 1/m; F in N. Edit freely: the calibrator validates and hot-reloads it.";
+
+/// Adds creep terms fitted on characterisation recordings to a fitted file's text; returns
+/// the new text and calibration (report lines appended).
+pub fn with_dynamics(
+    text: &str,
+    cal: &Calibration,
+    recs: &[Recording],
+    report: &mut Vec<String>,
+) -> anyhow::Result<(String, Calibration)> {
+    let mut file: CalibrationFile = toml::from_str(text)?;
+    add_creep(&mut file, cal, recs, report)?;
+    let text = to_toml(&file, FIT_COMMENT);
+    let cal = Calibration::from_toml_str("fitted calibration", &text)?;
+    Ok((text, cal))
 }
 
 /// Fits a calibration file (the whole array and the central block) from recordings with
@@ -456,8 +477,7 @@ pub fn fit_calibration(
         array,
         blocks,
     };
-    let comment = "Fitted by `taxel calibrator fit`. S = block sum of signal(raw) - signal(no-load baseline),\nwhere signal() follows the readout (the raw counts for the paper's amplifier);\nC = curvature in 1/m; F in N. Edit freely: the calibrator validates and hot-reloads it.";
-    let text = to_toml(&file, comment);
+    let text = to_toml(&file, FIT_COMMENT);
     let cal = Calibration::from_toml_str("fitted calibration", &text)?;
     Ok((text, cal, report))
 }

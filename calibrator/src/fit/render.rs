@@ -86,6 +86,20 @@ fn write_block(out: &mut String, header: &str, b: &BlockSpec) {
         let _ = write!(out, ", s_max_by_curvature = [{}]", pts.join(", "));
     }
     let _ = writeln!(out, " }}");
+    if let Some(c) = &b.creep {
+        let list = |v: &[f64]| {
+            v.iter()
+                .map(|a| format!("{a:e}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let _ = writeln!(
+            out,
+            "creep = {{ tau_s = [{}], share = [{}] }}",
+            list(&c.tau_s),
+            list(&c.share)
+        );
+    }
 }
 
 /// Renders a calibration file in the same hand-editable layout as the shipped ones.
@@ -148,6 +162,7 @@ mod tests {
                 curvature_m1: [0.0, 80.0],
                 s_max_by_curvature: vec![],
             },
+            creep: None,
         }
     }
 
