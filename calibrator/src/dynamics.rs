@@ -88,6 +88,11 @@ impl Creep {
         Ok(c)
     }
 
+    /// The largest time constant (s): how long a state takes to forget where it started.
+    pub fn longest_tau_s(&self) -> f64 {
+        self.tau_s[..self.n].iter().copied().fold(0.0, f64::max)
+    }
+
     /// The file's form.
     pub fn spec(&self) -> CreepSpec {
         CreepSpec {

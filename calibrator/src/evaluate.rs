@@ -103,9 +103,12 @@ pub struct BlockScores {
     pub overall_flat: Option<Overall>,
     /// Calibrated force per frame (curvature-aware, flat); NaN where not scored.
     pub forces: Vec<(f32, f32)>,
-    /// Every hold of the reference and the drift through it of the curvature-aware, then the
-    /// flat estimate (`holds`).
+    /// Every hold of the reference and the drift through it of the curvature-aware, the flat
+    /// and the static estimate (`holds`).
     pub holds: Vec<Hold>,
+    /// The curvature-aware calibration without its dynamic terms, per frame (NaN when it has
+    /// none).
+    pub static_forces: Vec<f32>,
 }
 
 /// The result for one recording.
@@ -256,6 +259,7 @@ fn score(
         overall_flat: has.flat.then(|| overall(&flat, reference)),
         forces,
         holds,
+        static_forces: statics,
     }
 }
 

@@ -77,11 +77,34 @@ pub fn force_vs_time(path: &Path, rec: &Recording, r: &Report, name: &str) -> an
             mark: Mark::Line,
         });
     }
+    let statics = r
+        .blocks
+        .iter()
+        .find(|b| b.block == r.headline)
+        .map_or(&[][..], |b| &b.static_forces[..]);
+    if statics.iter().any(|f| f.is_finite()) {
+        series.push(Series {
+            name: "curvature-aware, without its dynamic terms".into(),
+            points: statics
+                .iter()
+                .enumerate()
+                .take(rec.len())
+                .map(|(i, f)| (t(i), *f as f64))
+                .filter(|p| p.1.is_finite())
+                .collect(),
+            mark: Mark::Line,
+        });
+    }
     taxel_plot::write(
         path,
         &Chart {
             title: format!(
-                "{name}: force over time (curvature predicted {:.1} 1/m)",
+                "{name}: force over time (curvature {} {:.1} 1/m)",
+                if r.curvature_given {
+                    "given"
+                } else {
+                    "predicted"
+                },
                 r.curvature_pred_m1
             ),
             x_label: "time (s)".into(),

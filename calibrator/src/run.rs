@@ -62,6 +62,10 @@ pub struct Calibrator {
     last_t_ns: Option<u64>,
     /// Apply the file's dynamic terms (off: the static calibration alone, for comparison).
     dynamics: bool,
+    /// Until when (capture time) the dynamic states are not known: set by the first frame
+    /// with a baseline, unless the sensor was unloaded then.
+    warm_until_ns: Option<u64>,
+    warm_checked: bool,
 }
 
 impl Calibrator {
@@ -76,6 +80,8 @@ impl Calibrator {
             creep: [[0.0; crate::dynamics::MAX_TERMS]; 1 + MAX_BLOCKS],
             last_t_ns: None,
             dynamics: true,
+            warm_until_ns: None,
+            warm_checked: false,
         };
         c.refresh_base();
         c
@@ -190,11 +196,31 @@ impl Calibrator {
         let reading = |nodes: &[usize]| block_reading(&ro, counts, base, nodes);
         let offset = cal.no_load_force_n;
         let dynamics = self.dynamics;
+        let s = reading(&cal.array.nodes);
+        if !self.warm_checked {
+            // States start at zero: right if the sensor rests now, unknown if it is loaded.
+            self.warm_checked = true;
+            let longest = std::iter::once(&cal.array)
+                .chain(&cal.blocks)
+                .filter_map(|b| b.creep.map(|c| c.longest_tau_s()))
+                .fold(0.0, f64::max);
+            let (range, _) = cal.array.ranges();
+            let loaded = s > range[0] + UNLOADED_SHARE * (range[1] - range[0]);
+            if longest > 0.0 && loaded && self.dynamics {
+                self.warm_until_ns = Some(frame.t_capture_ns + (longest * 1e9) as u64);
+            }
+        }
+        if let Some(until) = self.warm_until_ns {
+            if frame.t_capture_ns < until {
+                flags |= force_flags::DYNAMICS_WARMING;
+            } else {
+                self.warm_until_ns = None;
+            }
+        }
         let mut instantaneous = |k: usize, b: &crate::calibration::Block, s: f64| match &b.creep {
             Some(cr) if dynamics => cr.step(&mut self.creep[k], s, dt_s),
             _ => s,
         };
-        let s = reading(&cal.array.nodes);
         let e = cal.array.evaluate(instantaneous(0, &cal.array, s), c);
         out.total_reading = s as f32;
         out.total_force_n = (offset + e.force_n) as f32;
@@ -213,6 +239,10 @@ impl Calibrator {
         out.flags = flags;
     }
 }
+
+/// The whole array's reading counts as unloaded (dynamic states known to be at rest) below this
+/// share of its declared range.
+const UNLOADED_SHARE: f64 = 0.02;
 
 /// S of a block (`nodes` empty: every node): the sum of `signal(raw) - signal(baseline)`. The
 /// amplifier's identity signal gets its own loop, so the hot path stays a plain sum.
@@ -359,4 +389,61 @@ pub fn run(
     summary.wake = wake;
     summary.dropped = seq.dropped;
     Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn calibrator(creep: &str) -> Calibrator {
+        let text = format!(
+            "id = \"c\"\nversion = 1\nrows = 1\ncols = 1\n[array]\nname = \"array\"\nmodel = {{ form = \"poly\", terms = [{{ s = 1, c = 0, coef = 0.01 }}] }}\nrange = {{ s = [0, 1000], curvature_m1 = [0, 80] }}\n{creep}\n"
+        );
+        let cal = Calibration::from_toml_str("c.toml", &text).expect("valid");
+        let mut c = Calibrator::new(
+            Arc::new(Loaded {
+                calibration: cal,
+                generation: 1,
+            }),
+            60.0,
+        );
+        let mut est = CurvatureEstimate::ZERO;
+        est.rows = 1;
+        est.cols = 1;
+        est.baseline[0] = 100.0;
+        c.set_curvature(&est);
+        c
+    }
+
+    /// Flags of a stream held at `reading` for `seconds` at 100 Hz, from t = 1 s.
+    fn flags(c: &mut Calibrator, reading: f32, seconds: f64) -> Vec<u32> {
+        let mut frame = RawFrame::ZERO;
+        frame.rows = 1;
+        frame.cols = 1;
+        frame.counts[0] = reading;
+        let mut out = ForceSample::ZERO;
+        (0..(seconds * 100.0) as u64)
+            .map(|i| {
+                frame.t_capture_ns = 1_000_000_000 + i * 10_000_000;
+                c.apply(&frame, frame.t_capture_ns, &mut out);
+                out.flags & force_flags::DYNAMICS_WARMING
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_calibrator_started_under_load_flags_its_dynamic_state_until_it_is_known() {
+        let creep = "creep = { tau_s = [1, 4], share = [0.1, 0.1] }";
+        // Started loaded: warming for the longest time constant (4 s), then not.
+        let f = flags(&mut calibrator(creep), 600.0, 6.0);
+        assert!(f[..399].iter().all(|&x| x != 0) && f[401..].iter().all(|&x| x == 0));
+        // Started at rest: the zero states are right from the first frame.
+        assert!(flags(&mut calibrator(creep), 101.0, 2.0)
+            .iter()
+            .all(|&x| x == 0));
+        // Without dynamic terms there is nothing to warm up.
+        assert!(flags(&mut calibrator(""), 600.0, 2.0)
+            .iter()
+            .all(|&x| x == 0));
+    }
 }

@@ -167,6 +167,7 @@ impl State {
             (force_flags::OUT_OF_RANGE, "RANGE"),
             (force_flags::NO_BASELINE, "NO-BASELINE"),
             (force_flags::GAP_BEFORE, "GAP"),
+            (force_flags::DYNAMICS_WARMING, "WARMING"),
         ] {
             if f.flags & bit != 0 {
                 flags.push(name);

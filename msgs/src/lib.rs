@@ -226,6 +226,9 @@ pub mod force_flags {
     /// No no-load baseline has been measured on this stream yet: the forces use the
     /// calibration file's `no_load_reading` (set together with `NO_BASELINE`).
     pub const BASELINE_FROM_CALIBRATION: u32 = 1 << 6;
+    /// The calibration has dynamic terms whose state is not known yet: the calibrator started
+    /// (or restarted) with the sensor loaded, less than the largest time constant ago.
+    pub const DYNAMICS_WARMING: u32 = 1 << 7;
 }
 
 /// Calibrated forces for one frame.

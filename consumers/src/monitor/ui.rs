@@ -204,6 +204,11 @@ fn draw_stats(f: &mut Frame, area: Rect, s: &SensorState) {
                 (force_flags::CURVATURE_DEFAULTED, "curvature-defaulted"),
                 (force_flags::NO_BASELINE, "no-baseline"),
                 (force_flags::GAP_BEFORE, "gap"),
+                (
+                    force_flags::BASELINE_FROM_CALIBRATION,
+                    "baseline-from-calibration",
+                ),
+                (force_flags::DYNAMICS_WARMING, "dynamics-warming"),
             ] {
                 if fs.flags & bit != 0 {
                     flags.push(name);
