@@ -12,6 +12,14 @@ fn fmt_f(x: f64) -> String {
     }
 }
 
+/// Numbers in exponent form, comma separated (exact round trip).
+fn list(v: &[f64]) -> String {
+    v.iter()
+        .map(|a| format!("{a:e}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 fn write_block(out: &mut String, header: &str, b: &BlockSpec) {
     let _ = writeln!(out, "\n{header}");
     let _ = writeln!(out, "name = {:?}", b.name);
@@ -36,12 +44,6 @@ fn write_block(out: &mut String, header: &str, b: &BlockSpec) {
             x,
             f,
         } => {
-            let list = |v: &[f64]| {
-                v.iter()
-                    .map(|a| format!("{a:e}"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            };
             let _ = writeln!(
                 out,
                 "model = {{ form = \"physics\", curvature_gain = [{:e}, {:e}],\n  x = [{}],\n  f = [{}] }}",
@@ -52,12 +54,6 @@ fn write_block(out: &mut String, header: &str, b: &BlockSpec) {
             );
         }
         ModelSpec::Monotone { curvature_m1, f, s } => {
-            let list = |v: &[f64]| {
-                v.iter()
-                    .map(|a| format!("{a:e}"))
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            };
             let rows: Vec<String> = s.iter().map(|r| format!("    [{}]", list(r))).collect();
             let _ = writeln!(
                 out,
@@ -87,12 +83,6 @@ fn write_block(out: &mut String, header: &str, b: &BlockSpec) {
     }
     let _ = writeln!(out, " }}");
     if let Some(c) = &b.creep {
-        let list = |v: &[f64]| {
-            v.iter()
-                .map(|a| format!("{a:e}"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
         let _ = writeln!(
             out,
             "creep = {{ tau_s = [{}], share = [{}] }}",
