@@ -8,7 +8,7 @@ mod common;
 
 use std::time::Duration;
 
-use common::{spawn_logger, spawn_ready, unique_prefix, Proc};
+use common::{spawn_calibrator, spawn_logger, spawn_ready, unique_prefix, Proc};
 use taxel_formats::{Record, RecordFileReader};
 
 const SIM_CAL: &str = include_str!("../calibrations/sim-default.toml");
@@ -78,19 +78,7 @@ fn calibrator_keeps_serving_through_bad_calibration_files() {
     let limit = Duration::from_secs(20);
 
     let mut logger = spawn_logger(&prefix, "s0", &rec_s);
-    let mut calibrator = spawn_ready(
-        "calibrator",
-        &prefix,
-        &[
-            "calibrator",
-            "run",
-            "--sensor",
-            "s0",
-            "--calibration",
-            &cal_s,
-        ],
-        "calibrator ready",
-    );
+    let mut calibrator = spawn_calibrator(&prefix, "s0", &cal_s);
     let mut estimator = spawn_ready(
         "estimator",
         &prefix,

@@ -8,7 +8,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Duration;
 
-use common::{run, spawn, spawn_logger, spawn_ready, unique_prefix};
+use common::{run, spawn, spawn_calibrator, spawn_logger, spawn_ready, unique_prefix};
 use taxel_formats::{Record, RecordFileReader, Recording};
 
 #[test]
@@ -100,19 +100,7 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
     let rec_file = dir.path().join("live.taxrec").display().to_string();
     let limit = Duration::from_secs(20);
     let mut logger = spawn_logger(&prefix, "s0", &rec_file);
-    let mut calibrator = spawn_ready(
-        "calibrator",
-        &prefix,
-        &[
-            "calibrator",
-            "run",
-            "--sensor",
-            "s0",
-            "--calibration",
-            &cal.display().to_string(),
-        ],
-        "calibrator ready",
-    );
+    let mut calibrator = spawn_calibrator(&prefix, "s0", &cal.display().to_string());
     let mut estimator = spawn_ready(
         "estimator",
         &prefix,

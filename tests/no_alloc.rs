@@ -6,7 +6,6 @@
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
 
 struct Counting;
 static ALLOCS: AtomicU64 = AtomicU64::new(0);
@@ -41,20 +40,13 @@ fn allocations(mut f: impl FnMut()) -> u64 {
 #[test]
 fn hot_paths_do_not_allocate() {
     use taxel_calibrator::calibration::Calibration;
-    use taxel_calibrator::reload::Loaded;
     use taxel_calibrator::run::Calibrator;
     use taxel_msgs::{CurvatureEstimate, ForceSample, RawFrame};
 
     // Calibrator, per frame.
     let cal = Calibration::from_toml_str("c", include_str!("../calibrations/sim-default.toml"))
         .expect("cal");
-    let mut c = Calibrator::new(
-        Arc::new(Loaded {
-            calibration: cal,
-            generation: 1,
-        }),
-        60.0,
-    );
+    let mut c = Calibrator::for_calibration(cal, 60.0);
     let mut est = CurvatureEstimate::ZERO;
     est.rows = 4;
     est.cols = 4;

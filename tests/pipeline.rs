@@ -9,7 +9,7 @@ mod common;
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
-use common::{shm_files, spawn, spawn_logger, spawn_ready, unique_prefix};
+use common::{shm_files, spawn, spawn_calibrator, spawn_logger, spawn_ready, unique_prefix};
 use taxel_formats::{Record, RecordFileReader};
 
 const SIM_CAL: &str = include_str!("../calibrations/sim-default.toml");
@@ -59,19 +59,7 @@ fn pipeline_streams_tracks_force_hot_reloads_and_shuts_down_clean() {
     let limit = Duration::from_secs(20);
 
     let mut logger = spawn_logger(&prefix, "s0", &rec_s);
-    let mut calibrator = spawn_ready(
-        "calibrator",
-        &prefix,
-        &[
-            "calibrator",
-            "run",
-            "--sensor",
-            "s0",
-            "--calibration",
-            &cal_s,
-        ],
-        "calibrator ready",
-    );
+    let mut calibrator = spawn_calibrator(&prefix, "s0", &cal_s);
     let mut estimator = spawn_ready(
         "estimator",
         &prefix,
@@ -283,19 +271,7 @@ fn late_calibrator_gets_the_latest_curvature_from_history() {
     // Wait until the press is on, then start the consumers.
     std::thread::sleep(Duration::from_millis(1500));
     let mut logger = spawn_logger(&prefix, "s0", &rec_s);
-    let mut calibrator = spawn_ready(
-        "calibrator",
-        &prefix,
-        &[
-            "calibrator",
-            "run",
-            "--sensor",
-            "s0",
-            "--calibration",
-            &cal_s,
-        ],
-        "calibrator ready",
-    );
+    let mut calibrator = spawn_calibrator(&prefix, "s0", &cal_s);
     std::thread::sleep(Duration::from_secs(2));
     for p in [&calibrator, &logger, &publisher, &estimator] {
         p.sigint();

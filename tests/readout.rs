@@ -7,7 +7,7 @@ mod common;
 
 use std::time::Duration;
 
-use common::{spawn, spawn_ready, unique_prefix};
+use common::{spawn, spawn_calibrator, unique_prefix};
 
 const CAL: &str = r#"
 id = "amp"
@@ -54,19 +54,7 @@ fn a_stream_of_the_other_direction_is_refused_and_another_kind_is_noted() {
     }
     std::fs::write(&rec, text).expect("write");
     let (cal_s, rec_s) = (cal.display().to_string(), rec.display().to_string());
-    let mut calibrator = spawn_ready(
-        "calibrator",
-        &prefix,
-        &[
-            "calibrator",
-            "run",
-            "--sensor",
-            "s0",
-            "--calibration",
-            &cal_s,
-        ],
-        "calibrator ready",
-    );
+    let mut calibrator = spawn_calibrator(&prefix, "s0", &cal_s);
     replay(&prefix, &rec_s, "resistance");
     calibrator.wait_for("frames are skipped", Duration::from_secs(20));
     replay(&prefix, &rec_s, "divider");

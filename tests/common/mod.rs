@@ -75,3 +75,21 @@ pub fn spawn_logger(prefix: &str, sensors: &str, out: &str) -> Proc {
         "logger ready",
     )
 }
+
+/// `taxel calibrator run --sensor SENSOR --calibration CAL`, ready.
+#[allow(dead_code)] // not every test binary calibrates
+pub fn spawn_calibrator(prefix: &str, sensor: &str, cal: &str) -> Proc {
+    spawn_ready(
+        "calibrator",
+        prefix,
+        &[
+            "calibrator",
+            "run",
+            "--sensor",
+            sensor,
+            "--calibration",
+            cal,
+        ],
+        "calibrator ready",
+    )
+}
