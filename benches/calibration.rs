@@ -1,23 +1,14 @@
 //! Applying a calibration to one frame (both blocks: the centre block and the whole array).
 //! Run: `cargo bench --bench calibration`.
 
-use std::sync::Arc;
-
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use taxel_calibrator::calibration::Calibration;
-use taxel_calibrator::reload::Loaded;
 use taxel_calibrator::run::Calibrator;
 use taxel_msgs::{CurvatureEstimate, ForceSample, RawFrame};
 
 fn calibrator(text: &str) -> Calibrator {
     let cal = Calibration::from_toml_str("bench", text).expect("calibration");
-    let mut c = Calibrator::new(
-        Arc::new(Loaded {
-            calibration: cal,
-            generation: 1,
-        }),
-        60.0,
-    );
+    let mut c = Calibrator::for_calibration(cal, 60.0);
     let mut est = CurvatureEstimate::ZERO;
     est.rows = 4;
     est.cols = 4;

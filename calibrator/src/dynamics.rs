@@ -23,6 +23,14 @@ pub const MAX_TERMS: usize = 6;
 /// Largest total share: above it the inversion amplifies noise more than it removes creep.
 pub const MAX_TOTAL_SHARE: f64 = 0.9;
 
+/// One step of a first-order lag: `x` moves toward `target` over `dt_s` with time constant
+/// `tau_s` (stable for any step: it never overshoots).
+#[inline]
+pub fn lag_step(x: &mut f64, target: f64, dt_s: f64, tau_s: f64) {
+    let dt = dt_s.max(0.0);
+    *x += dt / (tau_s + dt) * (target - *x);
+}
+
 /// Creep of a block, as written in a calibration file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -112,9 +120,8 @@ impl Creep {
             .zip(&state[..n])
             .map(|(a, x)| a * x)
             .sum::<f64>();
-        let dt = dt_s.max(0.0);
         for (x, tau) in state[..n].iter_mut().zip(&self.tau_s[..n]) {
-            *x += dt / (tau + dt) * (se - *x);
+            lag_step(x, se, dt_s, *tau);
         }
         se
     }
@@ -139,7 +146,7 @@ impl Creep {
                 .sum();
             out.push(e + creep);
             for (x, tau) in state[..n].iter_mut().zip(&self.tau_s[..n]) {
-                *x += dt / (tau + dt) * (e - *x);
+                lag_step(x, e, dt, *tau);
             }
         }
         out

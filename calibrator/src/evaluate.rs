@@ -18,8 +18,6 @@
 //! block, so the headline is the whole array unless asked otherwise. `overall` is the error over
 //! every scored frame whose reference force is at least 0.5 N, absolute and relative.
 
-use std::sync::Arc;
-
 use taxel_estimator::baseline::DetectorConfig;
 use taxel_estimator::estimate::Estimator;
 use taxel_estimator::model::CurvatureModel;
@@ -28,7 +26,6 @@ use taxel_msgs::{sensor_id_bytes, source, CurvatureEstimate, ForceSample, RawFra
 
 use crate::calibration::Calibration;
 use crate::holds::Hold;
-use crate::reload::Loaded;
 use crate::run::Calibrator;
 
 /// Tolerance around a level (N) and least window length (s), as in the paper.
@@ -275,15 +272,7 @@ struct Side {
 
 impl Side {
     fn new(curve: &Calibration, flat: Option<&Calibration>) -> Side {
-        let wrap = |c: &Calibration| {
-            Calibrator::new(
-                Arc::new(Loaded {
-                    calibration: c.clone(),
-                    generation: 1,
-                }),
-                f64::INFINITY,
-            )
-        };
+        let wrap = |c: &Calibration| Calibrator::for_calibration(c.clone(), f64::INFINITY);
         let dynamic = std::iter::once(&curve.array)
             .chain(&curve.blocks)
             .any(|b| b.creep.is_some());
@@ -538,17 +527,11 @@ fn overall_json(o: &Overall) -> String {
     )
 }
 
-/// The JSON object of `taxel calibrator eval --json`.
-/// `{"holds": n, "mean_abs_n": …, "flat_mean_abs_n": …, "per_hold": [{"t_start_s": …,
-/// "seconds": …, "force_n": …, "drift_n": …, "flat_drift_n": …}, …]}` (null for a missing value).
+/// `{"holds": n, "mean_abs_n": …, "flat_mean_abs_n": …, "static_mean_abs_n": …, "per_hold":
+/// [{"t_start_s": …, "seconds": …, "force_n": …, "drift_n": …, "flat_drift_n": …,
+/// "static_drift_n": …}, …]}` (null for a missing value).
 fn holds_json(holds: &[Hold]) -> String {
-    let num = |x: f64| {
-        if x.is_finite() {
-            format!("{x:.4}")
-        } else {
-            "null".into()
-        }
-    };
+    let drift = |h: &Hold, k: usize| num(h.drift_n.get(k).copied().unwrap_or(f64::NAN), 1);
     let per: Vec<String> = holds
         .iter()
         .map(|h| {
@@ -557,22 +540,23 @@ fn holds_json(holds: &[Hold]) -> String {
                 h.t_start_s,
                 h.seconds,
                 h.force_n,
-                num(h.drift_n.first().copied().unwrap_or(f64::NAN)),
-                num(h.drift_n.get(1).copied().unwrap_or(f64::NAN)),
-                num(h.drift_n.get(2).copied().unwrap_or(f64::NAN))
+                drift(h, 0),
+                drift(h, 1),
+                drift(h, 2)
             )
         })
         .collect();
     format!(
         "{{\"holds\": {}, \"mean_abs_n\": {}, \"flat_mean_abs_n\": {}, \"static_mean_abs_n\": {}, \"per_hold\": [{}]}}",
         holds.len(),
-        num(crate::holds::mean_abs_drift(holds, 0)),
-        num(crate::holds::mean_abs_drift(holds, 1)),
-        num(crate::holds::mean_abs_drift(holds, 2)),
+        num(crate::holds::mean_abs_drift(holds, 0), holds.len()),
+        num(crate::holds::mean_abs_drift(holds, 1), holds.len()),
+        num(crate::holds::mean_abs_drift(holds, 2), holds.len()),
         per.join(", ")
     )
 }
 
+/// The JSON object of `taxel calibrator eval --json`.
 pub fn json(r: &Report) -> String {
     let blocks: Vec<String> = r
         .blocks

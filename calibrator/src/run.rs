@@ -62,10 +62,19 @@ pub struct Calibrator {
     last_t_ns: Option<u64>,
     /// Apply the file's dynamic terms (off: the static calibration alone, for comparison).
     dynamics: bool,
-    /// Until when (capture time) the dynamic states are not known: set by the first frame
-    /// with a baseline, unless the sensor was unloaded then.
-    warm_until_ns: Option<u64>,
-    warm_checked: bool,
+    /// Whether the dynamic states are known (see `DYNAMICS_WARMING`).
+    warm: Warm,
+}
+
+/// What the calibrator knows of its dynamic states.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Warm {
+    /// No frame with a baseline yet.
+    Unchecked,
+    /// Started under load: not known until this capture time.
+    Until(u64),
+    /// Known (started at rest, or long enough ago, or no dynamic terms).
+    Known,
 }
 
 impl Calibrator {
@@ -80,11 +89,22 @@ impl Calibrator {
             creep: [[0.0; crate::dynamics::MAX_TERMS]; 1 + MAX_BLOCKS],
             last_t_ns: None,
             dynamics: true,
-            warm_until_ns: None,
-            warm_checked: false,
+            warm: Warm::Unchecked,
         };
         c.refresh_base();
         c
+    }
+
+    /// A calibrator for a calibration loaded outside the watcher (generation 1): offline
+    /// evaluation, tests, benchmarks.
+    pub fn for_calibration(calibration: Calibration, curvature_stale_s: f64) -> Calibrator {
+        Calibrator::new(
+            Arc::new(Loaded {
+                calibration,
+                generation: 1,
+            }),
+            curvature_stale_s,
+        )
     }
 
     /// Recomputes the baseline's signal (after a new baseline or a new calibration, whose
@@ -197,9 +217,9 @@ impl Calibrator {
         let offset = cal.no_load_force_n;
         let dynamics = self.dynamics;
         let s = reading(&cal.array.nodes);
-        if !self.warm_checked {
+        if self.warm == Warm::Unchecked {
             // States start at zero: right if the sensor rests now, unknown if it is loaded.
-            self.warm_checked = true;
+            self.warm = Warm::Known;
             let longest = std::iter::once(&cal.array)
                 .chain(&cal.blocks)
                 .filter_map(|b| b.creep.map(|c| c.longest_tau_s()))
@@ -207,14 +227,14 @@ impl Calibrator {
             let (range, _) = cal.array.ranges();
             let loaded = s > range[0] + UNLOADED_SHARE * (range[1] - range[0]);
             if longest > 0.0 && loaded && self.dynamics {
-                self.warm_until_ns = Some(frame.t_capture_ns + (longest * 1e9) as u64);
+                self.warm = Warm::Until(frame.t_capture_ns + (longest * 1e9) as u64);
             }
         }
-        if let Some(until) = self.warm_until_ns {
+        if let Warm::Until(until) = self.warm {
             if frame.t_capture_ns < until {
                 flags |= force_flags::DYNAMICS_WARMING;
             } else {
-                self.warm_until_ns = None;
+                self.warm = Warm::Known;
             }
         }
         let mut instantaneous = |k: usize, b: &crate::calibration::Block, s: f64| match &b.creep {
@@ -400,13 +420,7 @@ mod tests {
             "id = \"c\"\nversion = 1\nrows = 1\ncols = 1\n[array]\nname = \"array\"\nmodel = {{ form = \"poly\", terms = [{{ s = 1, c = 0, coef = 0.01 }}] }}\nrange = {{ s = [0, 1000], curvature_m1 = [0, 80] }}\n{creep}\n"
         );
         let cal = Calibration::from_toml_str("c.toml", &text).expect("valid");
-        let mut c = Calibrator::new(
-            Arc::new(Loaded {
-                calibration: cal,
-                generation: 1,
-            }),
-            60.0,
-        );
+        let mut c = Calibrator::for_calibration(cal, 60.0);
         let mut est = CurvatureEstimate::ZERO;
         est.rows = 1;
         est.cols = 1;

@@ -209,10 +209,9 @@ pub struct BaselineDetector {
     /// Reference noise per node (judging domain).
     sigma: Vec<f64>,
     scratch: Vec<f64>,
-    /// Each node's level shift from the baseline in use, for the window just judged.
+    /// Each node's level minus the baseline in use, for the window just judged (judging
+    /// domain, which rises with the reading).
     shift: Vec<f64>,
-    /// The same, signed toward load (its absolute value when the direction is not known).
-    toward_load: Vec<f64>,
     /// The baseline in use, judging domain and stream units (valid when `has_current`).
     current: Vec<f64>,
     current_raw: Vec<f64>,
@@ -244,7 +243,6 @@ impl BaselineDetector {
             sigma: Vec::new(),
             scratch: Vec::new(),
             shift: Vec::new(),
-            toward_load: Vec::new(),
             current: Vec::new(),
             current_raw: Vec::new(),
             has_current: false,
@@ -317,7 +315,6 @@ impl BaselineDetector {
         self.sigma = vec![0.0; n];
         self.scratch = Vec::with_capacity(w.max(NOISE_HISTORY));
         self.shift = vec![0.0; n];
-        self.toward_load = vec![0.0; n];
         self.current = vec![0.0; n];
         self.current_raw = vec![0.0; n];
         self.candidate = vec![0.0; n];
@@ -373,18 +370,18 @@ impl BaselineDetector {
             v > limit(me.sigma[k], me.cfg.contact_sigmas, me.cfg.contact_threshold)
         };
         // Steady and away from the baseline: a held press, or a new unloaded level.
-        let remount = self.has_current && (0..self.n).any(|k| beyond(self, k, self.shift[k]));
+        let remount = self.has_current && (0..self.n).any(|k| beyond(self, k, self.shift[k].abs()));
         // Knowing the direction of a load, a level on the unloaded side cannot be a press: it
         // is the new unloaded level at once (a remount, or a sensor that relaxed).
         let unloading = remount
             && self.cfg.rises.is_some()
-            && (0..self.n).all(|k| !beyond(self, k, self.toward_load[k]));
+            && (0..self.n).all(|k| !beyond(self, k, self.toward_load(k)));
         if unloading {
             self.last_emit_ns = None;
         }
         if remount && !unloading {
-            let too_far =
-                (0..self.n).any(|k| self.shift[k] > self.sigma[k] * self.cfg.max_rebaseline_sigmas);
+            let too_far = (0..self.n)
+                .any(|k| self.shift[k].abs() > self.sigma[k] * self.cfg.max_rebaseline_sigmas);
             if too_far {
                 self.candidate_since = None;
                 return None;
@@ -493,20 +490,23 @@ impl BaselineDetector {
                 }
             };
             steady &= spread_ok;
-            let d = if self.has_current {
+            self.shift[k] = if self.has_current {
                 s.level - self.current[k]
             } else {
                 0.0
             };
-            self.shift[k] = d.abs();
-            // The domain is increasing in the reading, so the sign of d is the reading's.
-            self.toward_load[k] = match self.cfg.rises {
-                Some(true) => d,
-                Some(false) => -d,
-                None => d.abs(),
-            };
         }
         steady
+    }
+
+    /// Node `k`'s shift counted toward load (its size when the direction is not known).
+    fn toward_load(&self, k: usize) -> f64 {
+        let d = self.shift[k];
+        match self.cfg.rises {
+            Some(true) => d,
+            Some(false) => -d,
+            None => d.abs(),
+        }
     }
 }
 

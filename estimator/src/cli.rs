@@ -222,13 +222,9 @@ fn train(a: TrainArgs) -> Result<(), Failure> {
             )));
         }
     }
-    let recs = crate::dataset::read_all(&a.data).config_err()?;
-    let (readout, why) = crate::dataset::readout_for(&recs, a.readout.0, a.full_scale)
-        .map_err(|e| anyhow::anyhow!(e))
-        .config_err()?;
+    let (readout, why, samples) =
+        crate::dataset::prepare(&a.data, a.readout.0, a.full_scale).config_err()?;
     println!("{why}");
-    let samples = crate::dataset::samples(&recs).config_err()?;
-    drop(recs);
     let opts = TrainOptions {
         readout,
         kind: a.model,
@@ -334,17 +330,7 @@ pub fn evaluate(
     model: &CurvatureModel,
     data: &[PathBuf],
 ) -> Result<(Metrics, Vec<(f64, f64)>), Failure> {
-    let mut samples = crate::dataset::load(data).config_err()?;
-    samples.retain(|s| (0.0..=80.0 + 1e-9).contains(&s.curvature_m1));
-    if let Some(s) = samples.first() {
-        model
-            .check_nodes(&data[0].display().to_string(), s.baseline.len())
-            .config_err()?;
-    }
-    let pred = model.predict_samples(&samples);
-    let truth: Vec<f64> = samples.iter().map(|s| s.curvature_m1).collect();
-    let pairs = truth.iter().copied().zip(pred.iter().copied()).collect();
-    Ok((Metrics::of(&pred, &truth), pairs))
+    crate::model::evaluate_files(model, data).config_err()
 }
 
 fn eval(a: EvalArgs) -> Result<(), Failure> {

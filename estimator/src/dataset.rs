@@ -108,6 +108,19 @@ pub fn samples_of(rec: &Recording, source: usize) -> Result<Vec<Sample>, Dataset
         .collect())
 }
 
+/// Training data as `taxel estimator train` reads it: the recordings, their readout (given, or
+/// decided from the data, with the one line that says what and why) and their samples.
+pub fn prepare(
+    paths: &[impl AsRef<Path>],
+    choice: Option<ReadoutKind>,
+    full_scale: Option<f64>,
+) -> anyhow::Result<(Option<Readout>, String, Vec<Sample>)> {
+    let recs = read_all(paths)?;
+    let (readout, why) = readout_for(&recs, choice, full_scale).map_err(anyhow::Error::msg)?;
+    let samples = samples(&recs)?;
+    Ok((readout, why, samples))
+}
+
 /// Samples of several recordings, which must have the same node count.
 pub fn load(paths: &[impl AsRef<Path>]) -> Result<Vec<Sample>, DatasetError> {
     samples(&read_all(paths)?)

@@ -293,14 +293,13 @@ impl Dataset {
         let sums: Vec<f64> = (0..rec.len()).map(|i| rec.sample(i).iter().sum()).collect();
         let rising = match taxel_formats::readout::direction(&sums, &force) {
             Some(d) => d == taxel_formats::readout::Direction::Rises,
-            // No spread in force (a constant load): the top force quartile against the bottom
-            // one, as the only hint there is.
+            // No spread in force (a constant load): under a held load the material creeps
+            // toward more conductance, so the reading drifts the way a load moves it; the
+            // last quarter of the recording against the first.
             None => {
-                let mut order: Vec<usize> = (0..rec.len()).collect();
-                order.sort_by(|&a, &b| force[a].total_cmp(&force[b]));
                 let q = (rec.len() / 4).max(1);
-                let mean = |ix: &[usize]| ix.iter().map(|&i| sums[i]).sum::<f64>() / q as f64;
-                mean(&order[rec.len() - q..]) >= mean(&order[..q])
+                let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+                mean(&sums[rec.len() - q..]) >= mean(&sums[..q])
             }
         };
         let mut r = readout.clone();

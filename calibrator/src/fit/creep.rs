@@ -9,7 +9,7 @@ use taxel_formats::Recording;
 
 use super::observe::{observations, Baselines, Observation};
 use crate::calibration::{Block, Calibration, CalibrationFile};
-use crate::dynamics::{Creep, CreepSpec, MAX_TERMS, MAX_TOTAL_SHARE};
+use crate::dynamics::{lag_step, Creep, CreepSpec, MAX_TERMS, MAX_TOTAL_SHARE};
 
 /// Candidate time constants (s): log-spaced from a tap to a long hold.
 pub const TAU_GRID_S: [f64; 5] = [0.5, 2.0, 8.0, 32.0, 128.0];
@@ -59,11 +59,11 @@ fn lag(t: &[f64], file: &[usize], se: &[f64], tau: f64) -> Vec<f64> {
         }
         out.push(x);
         let dt = if k + 1 < se.len() && file[k + 1] == file[k] {
-            (t[k + 1] - t[k]).max(0.0)
+            t[k + 1] - t[k]
         } else {
             0.0
         };
-        x += dt / (tau + dt) * (se[k] - x);
+        lag_step(&mut x, se[k], dt, tau);
     }
     out
 }

@@ -131,7 +131,7 @@ pub fn run(o: &Options, mut progress: impl FnMut(usize, usize, &str)) -> anyhow:
         }
     }
     progress(done, total, "world B");
-    match worldb.as_deref().filter(|d| present(d)) {
+    match worldb.as_deref().filter(|d| d.is_dir()) {
         Some(d) => s
             .objects
             .push(external::world_b(d, &o.out.join("worldb"), o.epochs)?),
@@ -139,16 +139,12 @@ pub fn run(o: &Options, mut progress: impl FnMut(usize, usize, &str)) -> anyhow:
     }
     done += 1;
     progress(done, total, "real recordings");
-    match real.as_deref().filter(|d| present(d)) {
+    match real.as_deref().filter(|d| d.is_dir()) {
         Some(d) => s.real = external::real(d, &o.out.join("real"))?,
         None => s.skipped.push(absent("real recordings", real.as_deref())),
     }
     progress(total, total, "done");
     Ok(s)
-}
-
-fn present(d: &Path) -> bool {
-    d.is_dir()
 }
 
 fn absent(what: &str, d: Option<&Path>) -> String {

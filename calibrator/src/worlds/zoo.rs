@@ -44,10 +44,7 @@ pub fn train_curvature(
     seed: u64,
     epochs: usize,
 ) -> anyhow::Result<CurvatureModel> {
-    let recs = taxel_estimator::dataset::read_all(files)?;
-    let (readout, _why) =
-        taxel_estimator::dataset::readout_for(&recs, None, None).map_err(anyhow::Error::msg)?;
-    let samples = taxel_estimator::dataset::samples(&recs)?;
+    let (readout, _why, samples) = taxel_estimator::dataset::prepare(files, None, None)?;
     let names: Vec<String> = files.iter().map(|p| p.display().to_string()).collect();
     let opts = TrainOptions {
         readout,
@@ -69,9 +66,5 @@ pub fn train_curvature(
 
 /// `taxel estimator eval`: the model on held-out baselines, 0-80 1/m.
 pub fn curvature_metrics(model: &CurvatureModel, files: &[PathBuf]) -> anyhow::Result<Metrics> {
-    let mut samples = taxel_estimator::dataset::load(files)?;
-    samples.retain(|s| (0.0..=80.0 + 1e-9).contains(&s.curvature_m1));
-    let pred = model.predict_samples(&samples);
-    let truth: Vec<f64> = samples.iter().map(|s| s.curvature_m1).collect();
-    Ok(Metrics::of(&pred, &truth))
+    Ok(taxel_estimator::model::evaluate_files(model, files)?.0)
 }

@@ -337,7 +337,8 @@ fn knowing_the_direction_a_level_on_the_unloaded_side_replaces_the_baseline_at_o
         assert!((got[0].mean[0] - 5000.0).abs() < 2.0, "{}", got[0].mean[0]);
         // A steady press afterwards is still never a baseline.
         assert!(s.feed(&mut d, 10.0, 4.0, 0.0).is_empty());
-        // Not knowing the direction, the unloaded level waits rebaseline_s as a remount.
+        // Not knowing the direction, the unloaded level is too far from the first baseline to
+        // be a remount, and is never taken.
         let mut s = Stream::new(base.clone(), 2.0, gain, 11);
         let mut d = detector(false);
         s.feed(&mut d, 3.0, 4.0, 0.0);

@@ -295,6 +295,23 @@ fn predict_std(r: &Regressor, x: &[Vec<f64>]) -> Vec<f64> {
     }
 }
 
+/// Metrics of a model on recordings (`taxel estimator eval`), restricted to 0-80 1/m, and the
+/// (true, predicted) pairs.
+pub fn evaluate_files(
+    model: &CurvatureModel,
+    data: &[std::path::PathBuf],
+) -> anyhow::Result<(Metrics, Vec<(f64, f64)>)> {
+    let mut samples = crate::dataset::load(data)?;
+    samples.retain(|s| (0.0..=80.0 + 1e-9).contains(&s.curvature_m1));
+    if let (Some(s), Some(p)) = (samples.first(), data.first()) {
+        model.check_nodes(&p.display().to_string(), s.baseline.len())?;
+    }
+    let pred = model.predict_samples(&samples);
+    let truth: Vec<f64> = samples.iter().map(|s| s.curvature_m1).collect();
+    let pairs = truth.iter().copied().zip(pred.iter().copied()).collect();
+    Ok((Metrics::of(&pred, &truth), pairs))
+}
+
 /// Trains a model. `progress(done, total)` counts MLP epochs.
 pub fn train(
     samples: &[Sample],
