@@ -6,13 +6,31 @@
 //! its parameters buy), fits it, writes the extended simulator model (SIM.toml) and shows the
 //! fit improve (report.md, report.json, plots). It also holds the "reference world" used to
 //! prove the tool on recordings whose effects use other functional forms than its own.
+//!
+//! Rooms: `data` (the recording and its readout), `context` (what every evaluation shares),
+//! `effects` and `forms` (the effect library's configuration and functional forms), `model`
+//! (the forward model and its per-node least squares), `search` (the parameter search),
+//! `candidates` (what each effect tries), `cv` (cross-validation and the acceptance rule),
+//! `checks` (physics an effect must show), `diagnose` (forward selection and backward pass),
+//! `locate` (where the residual is structured), `named` and `unexplained` (what the verdict
+//! says), `report` (report.md, report.json, SIM.toml, figures), `refworld` and `cli`.
 
+pub mod candidates;
+pub mod checks;
 pub mod cli;
+pub mod context;
+pub mod cv;
 pub mod data;
 pub mod diagnose;
+pub mod effects;
+pub mod forms;
 pub mod locate;
 pub mod model;
+pub mod named;
 pub mod numeric;
 pub mod refworld;
 pub mod report;
 pub mod search;
+#[cfg(test)]
+mod testdata;
+pub mod unexplained;

@@ -6,7 +6,7 @@
 
 use serde::Serialize;
 
-use crate::model::Context;
+use crate::context::Context;
 
 #[derive(Debug, Clone, Serialize)]
 pub struct NodeStat {
@@ -412,6 +412,27 @@ pub fn locate(ctx: &Context, resid: &[f64], pred: &[f64]) -> Findings {
     let resp = responsiveness(ctx, pred);
     let rmax = resp.iter().cloned().fold(0.0, f64::max).max(1e-12);
     let w: Vec<f64> = resp.iter().map(|r| r / rmax).collect();
+    let dir = direction(ctx);
+    let corrs = correlations(ctx, resid, &w, &dir);
+    let splits = splits(ctx, resid, &w, &dir);
+    let presses = press_spread(ctx, resid, &w);
+    Findings {
+        nodes,
+        presses,
+        spans: span_list,
+        acf_lag1: acf(ctx, resid, 1),
+        acf_1s: acf(ctx, resid, lag_1s),
+        tau_int_samples: crate::cv::tau_int(resid, len, n),
+        correlations: corrs,
+        splits,
+    }
+}
+
+/// The residual's correlation with each named regressor built from the stimulus (`w`: each
+/// node's responsiveness relative to the most responsive; `dir`: the loading direction).
+fn correlations(ctx: &Context, resid: &[f64], w: &[f64], dir: &[i8]) -> Vec<Corr> {
+    let ds = ctx.ds;
+    let (len, n) = (ds.len(), ds.n);
     let fmax = ds.max_force().max(1e-12);
     let mut dt = vec![ds.dt()];
     dt.extend(ds.t.windows(2).map(|p| (p[1] - p[0]).max(1e-9)));
@@ -428,7 +449,6 @@ pub fn locate(ctx: &Context, resid: &[f64], pred: &[f64]) -> Findings {
     };
     let lp3 = lp(3.0);
     let lp30 = lp(30.0);
-    let dir = direction(ctx);
     let h = ((0.02 / ds.dt()).round() as usize).max(1);
     let dfdt: Vec<f64> = (0..len)
         .map(|i| {
@@ -509,6 +529,13 @@ pub fn locate(ctx: &Context, resid: &[f64], pred: &[f64]) -> Findings {
             "same-row load (crosstalk)",
         ));
     }
+    corrs
+}
+
+/// The residual split by loading direction, force range, trial, row and column.
+fn splits(ctx: &Context, resid: &[f64], w: &[f64], dir: &[i8]) -> Vec<Split> {
+    let ds = ctx.ds;
+    let fmax = ds.max_force().max(1e-12);
     let mut splits = Vec::new();
     splits.push(group_stats(
         ctx,
@@ -563,15 +590,5 @@ pub fn locate(ctx: &Context, resid: &[f64], pred: &[f64]) -> Findings {
             &|i, k| (ds.force[i] > 0.2 * fmax).then_some(k % ds.cols),
         ));
     }
-    let presses = press_spread(ctx, resid, &w);
-    Findings {
-        nodes,
-        presses,
-        spans: span_list,
-        acf_lag1: acf(ctx, resid, 1),
-        acf_1s: acf(ctx, resid, lag_1s),
-        tau_int_samples: crate::search::tau_int(resid, len, n),
-        correlations: corrs,
-        splits,
-    }
+    splits
 }

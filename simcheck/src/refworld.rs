@@ -227,15 +227,18 @@ pub fn generate(case: Case, seed: u64, duration_s: f64) -> Recording {
         case,
         Case::ThermalRecorded | Case::ThermalHidden | Case::TwoEffects
     );
-    let hyst = matches!(case, Case::Hysteresis | Case::TwoEffects);
     let preisach = Preisach::new();
-    let mut relays: Vec<Vec<bool>> = (0..N).map(|_| preisach.rest_state()).collect();
+    let mut nodes: Vec<NodeState> = (0..N)
+        .map(|_| NodeState {
+            relays: preisach.rest_state(),
+            creep: [0.0; 6],
+            bw_z: 0.0,
+            f_prev: 0.0,
+            settle: 0.0,
+        })
+        .collect();
     let mut noise_ar = [0.0f64; N];
-    let mut creep_s = [[0.0f64; 6]; N];
-    let mut bw_z = [0.0f64; N];
-    let mut f_prev = [0.0f64; N];
     let (mut t1, mut t2) = (temp_of(0.0), temp_of(0.0));
-    let mut settle = [0.0f64; N];
     // Broken thread: node 6 opens during some presses.
     let broken_presses: Vec<bool> = sched.iter().map(|_| rng.uniform() < 0.35).collect();
     let mut rec = Recording {
@@ -269,46 +272,7 @@ pub fn generate(case: Case, seed: u64, duration_s: f64) -> Recording {
             .iter()
             .position(|p| t >= p.0 && t < p.0 + p.1 + p.2 + p.3);
         for k in 0..N {
-            let skew = if case == Case::ScanSkew {
-                0.0006 * k as f64
-            } else {
-                0.0
-            };
-            let f_total = force_at(&sched, t + skew);
-            let mut f = f_total * w[k];
-            if case == Case::ScanSkew {
-                // Row-switch settling: the first node of each row lags its input.
-                let tau = if k % COLS == 0 { 0.002 } else { 0.0002 };
-                settle[k] += (f - settle[k]) * (1.0 - (-dt / tau).exp());
-                f = settle[k];
-            }
-            if hyst {
-                // Bouc-Wen on the local load with n = 2 and beta = 3 gamma (A = 1): the state
-                // saturates at (1 / (beta + gamma))^(1/2) = 0.25 N, sharply, and the loop is
-                // asymmetric (unloading first steepens). The tool's Bouc-Wen has beta = gamma
-                // (its n is fitted); its play operators have return-point memory.
-                let df = f - f_prev[k];
-                let z = bw_z[k];
-                bw_z[k] = z + df - 12.0 * df.abs() * z.abs() * z - 4.0 * df * z * z;
-                f += 0.45 * bw_z[k];
-            }
-            if case == Case::HysteresisPreisach {
-                f += 0.45 * 0.25 * preisach.step(&mut relays[k], f);
-            }
-            f_prev[k] = f_total * w[k];
-            if matches!(case, Case::Creep) {
-                // Log-time creep: equal relaxations per decade of time, 0.3 s to 300 s, about
-                // 1.5 % of the load per decade.
-                let mut extra = 0.0;
-                for (s, tau) in creep_s[k]
-                    .iter_mut()
-                    .zip([0.3, 1.0, 3.0, 10.0, 30.0, 100.0])
-                {
-                    *s += (f - *s) * (1.0 - (-dt / tau).exp());
-                    extra += 0.015 * *s;
-                }
-                f += extra;
-            }
+            let f = local_load(case, k, &sched, t, w[k], dt, &preisach, &mut nodes[k]);
             let base = match case {
                 Case::CurvatureBaseline | Case::CurvatureUnlabelled => {
                     g0[k] * (1.0 + kappa * (0.004 + 0.003 * u[k] + 0.002 * (u[k] * u[k] - 0.3)))
@@ -332,34 +296,15 @@ pub fn generate(case: Case, seed: u64, duration_s: f64) -> Recording {
             };
             g[k] = gk;
         }
-        let mut vout = [0.0f64; N];
-        if case == Case::Crosstalk {
-            let rs = 100.0;
-            let mut v_row = [0.0f64; ROWS];
-            for sel in 0..ROWS {
-                for (ri, vr) in v_row.iter_mut().enumerate() {
-                    let v_src = if ri == sel { 0.0 } else { vref };
-                    let mut num = v_src / rs;
-                    let mut den = 1.0 / rs;
-                    for c in 0..COLS {
-                        num += (vref + vos[c]) * g[ri * COLS + c];
-                        den += g[ri * COLS + c];
-                    }
-                    *vr = num / den;
-                }
-                for c in 0..COLS {
-                    let vc = vref + vos[c];
-                    let ic: f64 = (0..ROWS)
-                        .map(|ri| (vc - v_row[ri]) * g[ri * COLS + c])
-                        .sum();
-                    vout[sel * COLS + c] = vc + rg * ic;
-                }
-            }
+        let vout = if case == Case::Crosstalk {
+            crosstalk_vout(&g, &vos, vref, rg)
         } else {
+            let mut v = [0.0f64; N];
             for k in 0..N {
-                vout[k] = vref * (1.0 + rg * g[k]);
+                v[k] = vref * (1.0 + rg * g[k]);
             }
-        }
+            v
+        };
         for k in 0..N {
             noise_ar[k] = 0.5 * noise_ar[k] + 0.35 * rng.normal();
             let code = vout[k].min(5.0) / 5.0 * max_code + 0.6 * rng.normal() + noise_ar[k];
@@ -371,6 +316,24 @@ pub fn generate(case: Case, seed: u64, duration_s: f64) -> Recording {
         temp_col.push(amb + 0.05 * rng.normal());
         trial_col.push(trial as i64);
     }
+    attach_columns(&mut rec, case, force_col, kappa_col, temp_col, trial_col);
+    rec
+}
+
+/// The stimulus columns the case's recording carries: force always, curvature only where it is
+/// labelled, trial in the curvature cases, temperature where it is logged.
+fn attach_columns(
+    rec: &mut Recording,
+    case: Case,
+    force_col: Vec<f64>,
+    kappa_col: Vec<f64>,
+    temp_col: Vec<f64>,
+    trial_col: Vec<i64>,
+) {
+    let curv_case = matches!(
+        case,
+        Case::CurvatureSensitivity | Case::CurvatureBaseline | Case::CurvatureUnlabelled
+    );
     rec.force_n = Some(force_col);
     if matches!(case, Case::CurvatureSensitivity | Case::CurvatureBaseline) {
         rec.curvature_m1 = Some(kappa_col);
@@ -384,7 +347,104 @@ pub fn generate(case: Case, seed: u64, duration_s: f64) -> Recording {
     ) {
         rec.temp_c = Some(temp_col);
     }
-    rec
+}
+
+/// One node's state of the world's dynamic effects.
+struct NodeState {
+    relays: Vec<bool>,
+    creep: [f64; 6],
+    bw_z: f64,
+    f_prev: f64,
+    settle: f64,
+}
+
+/// Node `k`'s local load at time `t` (share `w_k` of the scheduled force) after the case's
+/// load-path effects: scan skew with row-switch settling, Bouc-Wen or Preisach hysteresis, and
+/// log-time creep.
+#[allow(clippy::too_many_arguments)]
+fn local_load(
+    case: Case,
+    k: usize,
+    sched: &[(f64, f64, f64, f64, f64)],
+    t: f64,
+    w_k: f64,
+    dt: f64,
+    preisach: &Preisach,
+    st: &mut NodeState,
+) -> f64 {
+    let hyst = matches!(case, Case::Hysteresis | Case::TwoEffects);
+    let skew = if case == Case::ScanSkew {
+        0.0006 * k as f64
+    } else {
+        0.0
+    };
+    let f_total = force_at(sched, t + skew);
+    let mut f = f_total * w_k;
+    if case == Case::ScanSkew {
+        // Row-switch settling: the first node of each row lags its input.
+        let tau = if k.is_multiple_of(COLS) {
+            0.002
+        } else {
+            0.0002
+        };
+        st.settle += (f - st.settle) * (1.0 - (-dt / tau).exp());
+        f = st.settle;
+    }
+    if hyst {
+        // Bouc-Wen on the local load with n = 2 and beta = 3 gamma (A = 1): the state
+        // saturates at (1 / (beta + gamma))^(1/2) = 0.25 N, sharply, and the loop is
+        // asymmetric (unloading first steepens). The tool's Bouc-Wen has beta = gamma
+        // (its n is fitted); its play operators have return-point memory.
+        let df = f - st.f_prev;
+        let z = st.bw_z;
+        st.bw_z = z + df - 12.0 * df.abs() * z.abs() * z - 4.0 * df * z * z;
+        f += 0.45 * st.bw_z;
+    }
+    if case == Case::HysteresisPreisach {
+        f += 0.45 * 0.25 * preisach.step(&mut st.relays, f);
+    }
+    st.f_prev = f_total * w_k;
+    if matches!(case, Case::Creep) {
+        // Log-time creep: equal relaxations per decade of time, 0.3 s to 300 s, about
+        // 1.5 % of the load per decade.
+        let mut extra = 0.0;
+        for (s, tau) in st.creep.iter_mut().zip([0.3, 1.0, 3.0, 10.0, 30.0, 100.0]) {
+            *s += (f - *s) * (1.0 - (-dt / tau).exp());
+            extra += 0.015 * *s;
+        }
+        f += extra;
+    }
+    f
+}
+
+/// The exact crosstalk network: with row `sel` selected, each other row floats to the voltage
+/// its crossings and the switch resistance set, and each column's amplifier sees the current of
+/// every row through its crossing (op-amp offsets `vos` per column).
+#[allow(clippy::needless_range_loop)]
+fn crosstalk_vout(g: &[f64; N], vos: &[f64], vref: f64, rg: f64) -> [f64; N] {
+    let rs = 100.0;
+    let mut vout = [0.0f64; N];
+    let mut v_row = [0.0f64; ROWS];
+    for sel in 0..ROWS {
+        for (ri, vr) in v_row.iter_mut().enumerate() {
+            let v_src = if ri == sel { 0.0 } else { vref };
+            let mut num = v_src / rs;
+            let mut den = 1.0 / rs;
+            for c in 0..COLS {
+                num += (vref + vos[c]) * g[ri * COLS + c];
+                den += g[ri * COLS + c];
+            }
+            *vr = num / den;
+        }
+        for c in 0..COLS {
+            let vc = vref + vos[c];
+            let ic: f64 = (0..ROWS)
+                .map(|ri| (vc - v_row[ri]) * g[ri * COLS + c])
+                .sum();
+            vout[sel * COLS + c] = vc + rg * ic;
+        }
+    }
+    vout
 }
 
 /// Preisach hysteresis: a weighted sum of relay hysterons on the local load. Relay `j` switches

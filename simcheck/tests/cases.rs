@@ -116,8 +116,8 @@ fn broken_thread_is_unexplained_at_its_node() {
 /// 4, 1, 3). Seed 16 is one where the median of whole counts gave two trials the same shift.
 #[test]
 fn trial_shifts_resolve_sub_count_baseline_changes() {
+    use taxel_simcheck::context::Context;
     use taxel_simcheck::data::Dataset;
-    use taxel_simcheck::model::Context;
     let rec = taxel_simcheck::refworld::generate(Case::CurvatureUnlabelled, 16, 300.0);
     let start = taxel_sim::SensorModel::default();
     let (ds, _) = Dataset::from_recording(rec, 4, 4, &start.readout, true).expect("dataset");
@@ -138,10 +138,11 @@ fn trial_shifts_resolve_sub_count_baseline_changes() {
 /// cross-validation, which credited every later candidate with what the joint refit gained.
 #[test]
 fn later_rounds_are_compared_with_the_refitted_model() {
+    use taxel_simcheck::context::Context;
+    use taxel_simcheck::cv::cross_validate;
     use taxel_simcheck::data::Dataset;
     use taxel_simcheck::diagnose::{diagnose, Options};
-    use taxel_simcheck::model::Context;
-    use taxel_simcheck::search::{cross_validate, refit_params};
+    use taxel_simcheck::search::refit_params;
     let rec = taxel_simcheck::refworld::generate(Case::Hysteresis, 1, 150.0);
     let start = taxel_sim::SensorModel::default();
     let (ds, _) = Dataset::from_recording(rec, 4, 4, &start.readout, true).expect("dataset");

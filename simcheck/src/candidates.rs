@@ -1,0 +1,410 @@
+//! The candidate effects: whether each can be tested on a recording, the starting points and
+//! parameters of each (and its variants: creep's third Prony term, the hysteresis forms, a
+//! latent drift's resolutions), and the parameters each adds for the information criterion.
+
+use crate::context::Context;
+use crate::effects::{Config, EffectKind, Thermal};
+use crate::forms::{latent_knots, latent_knots_n, latent_resolutions};
+use crate::search::{refit_params, Param};
+
+/// Whether an effect can be tested on this recording, and why not.
+pub fn applicable(ctx: &Context, cur: &Config, e: EffectKind) -> Result<(), &'static str> {
+    let ds = ctx.ds;
+    let kappa_varies = ds.kappa.as_ref().is_some_and(|k| {
+        let lo = k.iter().cloned().fold(f64::INFINITY, f64::min);
+        let hi = k.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        hi - lo > 1e-9
+    });
+    match e {
+        EffectKind::CurvatureBaseline => {
+            if kappa_varies || (ds.kappa.is_none() && ds.n_trials >= 2) {
+                Ok(())
+            } else {
+                Err("needs two or more curvatures or trials")
+            }
+        }
+        EffectKind::CurvatureSensitivity => {
+            let shifts = &ctx.trial_shift;
+            let mean = shifts.iter().sum::<f64>() / shifts.len().max(1) as f64;
+            let sd = (shifts.iter().map(|s| (s - mean).powi(2)).sum::<f64>()
+                / shifts.len().max(1) as f64)
+                .sqrt();
+            if kappa_varies || (ds.kappa.is_none() && ds.n_trials >= 3 && sd > 0.005) {
+                Ok(())
+            } else {
+                Err("needs two or more curvatures, or three or more trials whose no-load baselines differ")
+            }
+        }
+        EffectKind::Saturation => {
+            if cur.sat_in_base {
+                Err("part of the base fit (the starting model has a resistance floor)")
+            } else {
+                Ok(())
+            }
+        }
+        EffectKind::Crosstalk => {
+            if ds.rows >= 2 && ds.cols >= 2 && ds.map.kind() == taxel_sim::ReadoutKind::Amplifier {
+                Ok(())
+            } else {
+                Err("needs a row-column matrix read through the amplifier")
+            }
+        }
+        EffectKind::ScanSkew => {
+            if ds.n >= 2 {
+                Ok(())
+            } else {
+                Err("needs two or more nodes")
+            }
+        }
+        EffectKind::ThermalDrift => {
+            if ds.temp.is_some() || ds.duration() >= 60.0 {
+                Ok(())
+            } else {
+                Err("no temperature column and shorter than 60 s")
+            }
+        }
+        EffectKind::Creep | EffectKind::Hysteresis => Ok(()),
+    }
+}
+
+/// Starting points and searched parameters for adding effect `e` to `cur`.
+pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Vec<Param>) {
+    let ds = ctx.ds;
+    // The resistance floor stays at its current value while a candidate is tested (except
+    // saturation itself): it is slow to search and rarely trades off with the others.
+    let mut params = vec![Param::LnExponent];
+    let mut starts = Vec::new();
+    let fmax = ds.max_force().max(1e-9);
+    let gmax = ctx
+        .g_obs
+        .iter()
+        .zip(&ctx.usable)
+        .filter(|(_, u)| **u)
+        .map(|(g, _)| *g)
+        .fold(0.0, f64::max)
+        .max(1e-12);
+    let dur = ds.duration().max(1.0);
+    match e {
+        EffectKind::Creep => {
+            for (t1, t2) in [(0.5f64, 10.0f64), (1.5, 40.0), (4.0, 150.0)] {
+                if t1 > dur {
+                    continue;
+                }
+                for c in [0.02, 0.06] {
+                    let mut s = cur.clone();
+                    s.creep = Some(vec![(c, t1), (c, t2.min(dur))]);
+                    starts.push(s);
+                }
+            }
+            params.extend([
+                Param::CreepC(0),
+                Param::CreepLnTau(0),
+                Param::CreepC(1),
+                Param::CreepLnTau(1),
+            ]);
+        }
+        EffectKind::Hysteresis => {
+            for r in [0.01, 0.03, 0.1, 0.3] {
+                for mix in [0.0, 1.0] {
+                    let mut s = cur.clone();
+                    s.hysteresis = Some(r * fmax);
+                    s.hyst_mix = mix;
+                    starts.push(s);
+                }
+            }
+            params.extend([Param::HystLnR, Param::HystMix]);
+        }
+        EffectKind::ThermalDrift => {
+            if ds.temp.is_some() {
+                for tau in [10.0, 60.0, 300.0] {
+                    for a in [-0.003, 0.003] {
+                        let mut s = cur.clone();
+                        s.thermal = Some(Thermal::Recorded {
+                            alpha_per_k: a,
+                            tau_s: tau,
+                        });
+                        starts.push(s);
+                    }
+                }
+                params.extend([Param::ThermAlpha, Param::ThermLnTau]);
+            } else {
+                // The resolution is chosen among `latent_resolutions` by `candidates`.
+                let knots = latent_knots(ds);
+                let mut s = cur.clone();
+                s.thermal = Some(Thermal::Latent {
+                    values: vec![1.0; knots.len()],
+                    knots_s: knots,
+                });
+                starts.push(s);
+            }
+        }
+        EffectKind::CurvatureSensitivity => {
+            // Both forms PHYSICS.md names: 1/(1 + kappa/kappa_s) and 1 - kappa/kappa_1; the
+            // better start wins, then its parameter is refined.
+            let grid: Vec<f64> = if ds.kappa.is_some() {
+                vec![100.0, 300.0, 1000.0]
+            } else {
+                vec![-3.0, -1.0, 1.0, 3.0]
+            };
+            for linear in [false, true] {
+                for &v in &grid {
+                    let mut s = cur.clone();
+                    s.curv_sens = Some(v);
+                    s.curv_linear = linear;
+                    starts.push(s);
+                }
+            }
+            params.push(if ds.kappa.is_some() {
+                Param::CurvLnK
+            } else {
+                Param::CurvBeta
+            });
+        }
+        EffectKind::CurvatureBaseline => {
+            let mut s = cur.clone();
+            s.curv_base = true;
+            starts.push(s);
+        }
+        EffectKind::Saturation => {
+            for x in [0.05, 0.2, 0.5] {
+                let mut s = cur.clone();
+                s.saturation = true;
+                s.r_floor_ohm = x / gmax;
+                starts.push(s);
+            }
+            params.push(Param::LnFloor);
+        }
+        EffectKind::Crosstalk => {
+            let srow = gmax * ds.cols as f64;
+            for x in [0.01, 0.05, 0.15] {
+                let mut s = cur.clone();
+                s.crosstalk = Some(x / srow);
+                starts.push(s);
+            }
+            params.push(Param::LnRs);
+        }
+        EffectKind::ScanSkew => {
+            for dt in [1e-4, 4e-4, 1.5e-3] {
+                for settle in [1e-5, 1e-3] {
+                    let mut s = cur.clone();
+                    s.scan_skew = Some(dt);
+                    s.scan_settle = settle;
+                    starts.push(s);
+                }
+            }
+            params.extend([Param::LnSkew, Param::LnSettle]);
+        }
+    }
+    params.dedup();
+    (starts, params)
+}
+
+/// The variants of effect `e` to test on top of `cur`: start configurations and the parameters
+/// searched on each training fold (the current model's own, see [`refit_params`], and the
+/// effect's).
+pub fn candidates(ctx: &Context, cur: &Config, e: EffectKind) -> Vec<(Vec<Config>, Vec<Param>)> {
+    let held = refit_params(cur, ctx.ds.kappa.is_some());
+    candidate_variants(ctx, cur, e)
+        .into_iter()
+        .map(|(starts, params)| {
+            let mut all = held.clone();
+            for p in params {
+                if !all.contains(&p) {
+                    all.push(p);
+                }
+            }
+            (starts, all)
+        })
+        .collect()
+}
+
+/// The variants of candidate `e` to try, with the effect's own parameters: one, except creep,
+/// which is also tried with a third Prony term between the other two, and a latent thermal
+/// drift, which is tried at each resolution of [`latent_resolutions`] (the caller keeps the
+/// variant the criterion likes best).
+fn candidate_variants(
+    ctx: &Context,
+    cur: &Config,
+    e: EffectKind,
+) -> Vec<(Vec<Config>, Vec<Param>)> {
+    let (starts, params) = candidate(ctx, cur, e);
+    if e == EffectKind::Creep {
+        let three: Vec<Config> = starts
+            .iter()
+            .map(|s| {
+                let mut s = s.clone();
+                if let Some(t) = &mut s.creep {
+                    if let [(c1, t1), (c2, t2)] = t[..] {
+                        *t = vec![(c1, t1), (0.5 * (c1 + c2), (t1 * t2).sqrt()), (c2, t2)];
+                    }
+                }
+                s
+            })
+            .collect();
+        let mut p3 = params.clone();
+        p3.extend([Param::CreepC(2), Param::CreepLnTau(2)]);
+        return vec![(starts, params), (three, p3)];
+    }
+    if e == EffectKind::Hysteresis {
+        // One start per half-width (the additive starts come twice, with mix 0 and 1), each
+        // with both signs of the share.
+        let in_load: Vec<Config> = starts
+            .iter()
+            .filter(|s| s.hyst_mix == 0.0)
+            .flat_map(|s| {
+                [-0.3, 0.3].map(|a| Config {
+                    hyst_share: Some(a),
+                    hyst_mix: 1.0,
+                    ..s.clone()
+                })
+            })
+            .collect();
+        let mut p_load = params.clone();
+        p_load.push(Param::HystShare);
+        // The Bouc-Wen state in the load path: the same half-widths as saturations, both signs,
+        // and its exponent (charged like the plays' mix).
+        let bouc_wen: Vec<Config> = in_load
+            .iter()
+            .map(|s| Config {
+                hyst_bouc_wen: true,
+                hyst_mix: 0.0,
+                ..s.clone()
+            })
+            .collect();
+        let mut p_bw: Vec<Param> = params
+            .iter()
+            .copied()
+            .filter(|p| *p != Param::HystMix)
+            .collect();
+        p_bw.extend([Param::HystShare, Param::HystLnN]);
+        return vec![(starts, params), (in_load, p_load), (bouc_wen, p_bw)];
+    }
+    if e != EffectKind::ThermalDrift || ctx.ds.temp.is_some() {
+        return vec![(starts, params)];
+    }
+    latent_resolutions(ctx.ds)
+        .into_iter()
+        .map(|k| {
+            let knots = latent_knots_n(ctx.ds, k);
+            let s: Vec<Config> = starts
+                .iter()
+                .map(|s| {
+                    let mut s = s.clone();
+                    s.thermal = Some(Thermal::Latent {
+                        values: vec![1.0; knots.len()],
+                        knots_s: knots.clone(),
+                    });
+                    s
+                })
+                .collect();
+            (s, params.clone())
+        })
+        .collect()
+}
+
+/// Parameters an effect adds (for the information criterion): global ones and per node.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ParamCount {
+    pub global: usize,
+    pub per_node: usize,
+}
+
+/// Parameters an effect adds.
+/// Parameters effect `e` adds to `cfg` (which holds it: a latent drift's knots count).
+pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
+    let (global, per_node) = match e {
+        EffectKind::Creep => (2 * cfg.creep.as_ref().map_or(2, Vec::len), 0),
+        // In the load path: half-width, mix and share; or Bouc-Wen saturation, exponent, share.
+        EffectKind::Hysteresis if cfg.hyst_share.is_some() => (3, 0),
+        EffectKind::Hysteresis => (2, 1),
+        EffectKind::ThermalDrift => match &cfg.thermal {
+            Some(Thermal::Latent { knots_s, .. }) => (knots_s.len(), 0),
+            _ => (2, 0),
+        },
+        EffectKind::CurvatureBaseline => (0, 1),
+        EffectKind::CurvatureSensitivity | EffectKind::Saturation | EffectKind::Crosstalk => (1, 0),
+        EffectKind::ScanSkew => (2, 0),
+    };
+    ParamCount { global, per_node }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testdata::presses;
+
+    #[test]
+    fn variants_are_tried_and_charged_for_their_parameters() {
+        let ds = presses();
+        let ctx = Context::new(&ds);
+        let full = crate::forms::latent_knots(&ds).len();
+        let res = crate::forms::latent_resolutions(&ds);
+        assert_eq!(res.first(), Some(&2));
+        assert_eq!(res.last(), Some(&full));
+        assert!(res.windows(2).all(|w| w[0] < w[1]), "{res:?}");
+        let variants = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::ThermalDrift);
+        assert_eq!(variants.len(), res.len());
+        for ((starts, _), k) in variants.iter().zip(&res) {
+            let cfg = &starts[0];
+            match &cfg.thermal {
+                Some(Thermal::Latent { knots_s, values }) => {
+                    assert_eq!((knots_s.len(), values.len()), (*k, *k));
+                }
+                other => panic!("not latent: {other:?}"),
+            }
+            assert_eq!(n_params(cfg, EffectKind::ThermalDrift).global, *k);
+        }
+        // Creep: two Prony terms, or three (charged two parameters more).
+        let creep = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Creep);
+        assert_eq!(creep.len(), 2);
+        for ((starts, params), terms) in creep.iter().zip([2, 3]) {
+            let cfg = &starts[0];
+            assert_eq!(cfg.creep.as_ref().map(Vec::len), Some(terms));
+            assert_eq!(n_params(cfg, EffectKind::Creep).global, 2 * terms);
+            assert!(params.contains(&Param::CreepLnTau(terms - 1)));
+        }
+        // Hysteresis: additive with one amplitude per node, or in the load path with one
+        // global share (charged three global parameters and none per node), or a Bouc-Wen
+        // state in the load path (saturation, share and exponent instead of the plays' mix).
+        let hyst = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Hysteresis);
+        assert_eq!(hyst.len(), 3);
+        let (additive, in_load, bouc_wen) = (&hyst[0], &hyst[1], &hyst[2]);
+        assert!(bouc_wen
+            .0
+            .iter()
+            .all(|c| c.hyst_bouc_wen && c.hyst_share.is_some()));
+        assert!(bouc_wen.1.contains(&Param::HystShare) && !bouc_wen.1.contains(&Param::HystMix));
+        assert!(bouc_wen.1.contains(&Param::HystLnN));
+        assert!(in_load.0.iter().all(|c| !c.hyst_bouc_wen));
+        assert!(additive.0.iter().all(|c| c.hyst_share.is_none()));
+        assert!(in_load.0.iter().all(|c| c.hyst_share.is_some()));
+        assert!(in_load.1.contains(&Param::HystShare) && !additive.1.contains(&Param::HystShare));
+        let k = |c: &Config| n_params(c, EffectKind::Hysteresis);
+        assert_eq!(
+            k(&additive.0[0]),
+            ParamCount {
+                global: 2,
+                per_node: 1
+            }
+        );
+        assert_eq!(
+            k(&in_load.0[0]),
+            ParamCount {
+                global: 3,
+                per_node: 0
+            }
+        );
+        assert_eq!(
+            k(&bouc_wen.0[0]),
+            ParamCount {
+                global: 3,
+                per_node: 0
+            }
+        );
+        // Other effects have one variant.
+        assert_eq!(
+            candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Crosstalk).len(),
+            1
+        );
+    }
+}

@@ -1,0 +1,216 @@
+//! What every evaluation of a recording shares: the observed conductance and residual-domain
+//! readings, which observations are usable, each trial's no-load shift, the cross-validation
+//! blocks, and the bounds and scales the effects need (creep's longest time constant, each
+//! node's share of the load, the force noise's deadband).
+
+use crate::data::Dataset;
+
+/// Precomputed views of a dataset shared by every evaluation.
+pub struct Context<'a> {
+    pub ds: &'a Dataset,
+    /// Observed conductance (S), sample-major.
+    pub g_obs: Vec<f64>,
+    /// Observed reading in the residual domain.
+    pub dom_obs: Vec<f64>,
+    /// Observation usable (not on the rail).
+    pub usable: Vec<bool>,
+    /// Per-trial common log-shift of the no-load conductance against the whole recording.
+    pub trial_shift: Vec<f64>,
+    /// Cross-validation block of each sample and its fold (0 or 1).
+    pub block: Vec<usize>,
+    pub n_blocks: usize,
+    /// Longest creep time constant the recording can show (s): three times its longest
+    /// continuous loaded span. Creep is seen while a load is held; a slower "creep" could not be
+    /// told from a drift, so it is not allowed to stand in for one.
+    pub creep_tau_max: f64,
+    /// Per node: the total force that moves the node as much as one newton moves the most
+    /// loaded node (>= 1), from the nodes' loaded-minus-rest conductance (see `load_scale`).
+    /// In-load hysteresis uses it to turn a local half-width into total-force units.
+    pub load_scale: Vec<f64>,
+    /// Half-width (N) of the play that takes the load cell's noise out of the force before a
+    /// memoryless hysteresis state sees it: three standard deviations of the force noise,
+    /// estimated from the first differences (median absolute difference / 0.954).
+    pub force_deadband: f64,
+}
+
+impl<'a> Context<'a> {
+    pub fn new(ds: &'a Dataset) -> Context<'a> {
+        let n = ds.n;
+        let g_obs: Vec<f64> = ds.y.iter().map(|&y| ds.map.to_g(y)).collect();
+        let dom_obs = ds.y.iter().map(|&y| ds.map.dom(y)).collect();
+        let usable = ds.y.iter().map(|&y| !ds.map.on_rail(y)).collect();
+        // Rest samples: force below 2 % of the peak.
+        let fmax = ds.max_force();
+        let rest: Vec<bool> = ds.force.iter().map(|&f| f <= 0.02 * fmax).collect();
+        let mut overall = vec![Vec::new(); n];
+        let mut per_trial = vec![vec![Vec::new(); n]; ds.n_trials];
+        for i in 0..ds.len() {
+            if rest[i] {
+                for k in 0..n {
+                    let g = g_obs[i * n + k].max(1e-12).ln();
+                    overall[k].push(g);
+                    per_trial[ds.trial[i]][k].push(g);
+                }
+            }
+        }
+        let med = |v: &mut Vec<f64>| -> Option<f64> {
+            if v.is_empty() {
+                return None;
+            }
+            v.sort_by(f64::total_cmp);
+            Some(v[v.len() / 2])
+        };
+        // A node's rest level is a trimmed mean, not a median: the readings are whole ADC
+        // counts, and a curvature's baseline shift is often under one count, which the median
+        // of integer codes rounds away (two trials a count apart then both read as no shift).
+        // The noise dithers the codes, so their mean resolves fractions of a count.
+        let level = |v: &mut Vec<f64>| -> Option<f64> {
+            if v.is_empty() {
+                return None;
+            }
+            v.sort_by(f64::total_cmp);
+            let cut = v.len() / 10;
+            let kept = &v[cut..v.len() - cut];
+            Some(kept.iter().sum::<f64>() / kept.len() as f64)
+        };
+        let overall: Vec<Option<f64>> = overall.iter_mut().map(level).collect();
+        let trial_shift = per_trial
+            .iter_mut()
+            .map(|nodes| {
+                let mut d: Vec<f64> = nodes
+                    .iter_mut()
+                    .zip(&overall)
+                    .filter_map(|(v, o)| Some(level(v)? - (*o)?))
+                    .collect();
+                med(&mut d).unwrap_or(0.0)
+            })
+            .collect();
+        let (block, n_blocks) = blocks(ds);
+        let creep_tau_max = 3.0 * longest_loaded_span(ds);
+        let load_scale = load_scale(ds, &g_obs, &rest);
+        let force_deadband = force_deadband(&ds.force);
+        Context {
+            ds,
+            g_obs,
+            dom_obs,
+            usable,
+            trial_shift,
+            block,
+            n_blocks,
+            creep_tau_max,
+            load_scale,
+            force_deadband,
+        }
+    }
+
+    /// Every how many samples the parameter search looks (about 50 per second).
+    pub fn search_stride(&self) -> usize {
+        ((1.0 / self.ds.dt() / 50.0).round() as usize).max(1)
+    }
+
+    pub fn fold(&self, i: usize) -> usize {
+        self.block[i] % 2
+    }
+}
+
+/// The Bouc-Wen input's deadband (see [`Context::force_deadband`]): three standard deviations
+/// of the white noise on `f`, estimated from its first differences, whose median absolute value
+/// is 0.6745 sqrt(2) sd (ramps are a minority of the samples and barely move the median).
+pub fn force_deadband(f: &[f64]) -> f64 {
+    let mut d: Vec<f64> = f.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+    if d.is_empty() {
+        return 0.0;
+    }
+    d.sort_by(f64::total_cmp);
+    3.0 * d[d.len() / 2] / (0.6745 * std::f64::consts::SQRT_2)
+}
+
+/// Each node's share of the load relative to the most loaded node, inverted (see
+/// [`Context::load_scale`]): the median conductance rise over the rest level on samples above
+/// half the peak force, to the power 1 / 1.1 (a typical force-law exponent), clamped to 1..=100.
+fn load_scale(ds: &Dataset, g_obs: &[f64], rest: &[bool]) -> Vec<f64> {
+    let n = ds.n;
+    let fmax = ds.max_force();
+    let med = |mut v: Vec<f64>| -> f64 {
+        if v.is_empty() {
+            return 0.0;
+        }
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let rise: Vec<f64> = (0..n)
+        .map(|k| {
+            let column = |keep: &dyn Fn(usize) -> bool| -> Vec<f64> {
+                (0..ds.len())
+                    .filter(|&i| keep(i))
+                    .map(|i| g_obs[i * n + k])
+                    .collect()
+            };
+            let high = med(column(&|i| ds.force[i] >= 0.5 * fmax));
+            let low = med(column(&|i| rest[i]));
+            (high - low).max(0.0)
+        })
+        .collect();
+    let top = rise.iter().cloned().fold(0.0, f64::max);
+    rise.iter()
+        .map(|&r| {
+            if top > 0.0 && r > 0.0 {
+                (top / r).powf(1.0 / 1.1).clamp(1.0, 100.0)
+            } else {
+                100.0
+            }
+        })
+        .collect()
+}
+
+/// Contiguous time blocks, cut at trial changes too, about 1/24 of the recording each (at
+/// least 2 s and 20 samples); consecutive blocks alternate between the two folds.
+#[allow(clippy::needless_range_loop)]
+fn blocks(ds: &Dataset) -> (Vec<usize>, usize) {
+    let len = ds.len();
+    let target = (ds.duration() / 24.0).max(2.0);
+    let mut block = vec![0usize; len];
+    let mut b = 0usize;
+    let mut start_t = ds.t[0];
+    let mut start_i = 0usize;
+    for i in 0..len {
+        let new_trial = i > 0 && ds.trial[i] != ds.trial[i - 1];
+        if i > start_i && (new_trial || (ds.t[i] - start_t >= target && i - start_i >= 20)) {
+            b += 1;
+            start_t = ds.t[i];
+            start_i = i;
+        }
+        block[i] = b;
+    }
+    (block, b + 1)
+}
+
+/// The longest time (s) the force stays above 10 % of its peak without a break (at least one
+/// sample interval).
+pub fn longest_loaded_span(ds: &Dataset) -> f64 {
+    let limit = 0.1 * ds.max_force();
+    let (mut best, mut start): (f64, Option<f64>) = (0.0, None);
+    for (t, f) in ds.t.iter().zip(&ds.force) {
+        if *f > limit {
+            let s = *start.get_or_insert(*t);
+            best = best.max(t - s);
+        } else {
+            start = None;
+        }
+    }
+    best.max(ds.dt())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testdata::presses;
+
+    #[test]
+    fn the_longest_loaded_span_bounds_creep() {
+        let ds = presses();
+        // The longest press: two 2 s ramps around a 1 s hold, above 10 % of the 14 N peak.
+        let span = longest_loaded_span(&ds);
+        assert!(span > 4.0 && span < 5.0, "{span}");
+    }
+}

@@ -1,0 +1,327 @@
+//! Cross-validation and the acceptance rule: two-fold cross-validation over alternating time
+//! blocks, and whether a richer model beats a simpler one on held-out data: it must lower the
+//! held-out error consistently across blocks (block t statistic or signed-rank test), by more
+//! than an information criterion charges for its parameters, and by a minimum relative amount.
+
+use crate::candidates::ParamCount;
+use crate::context::Context;
+use crate::effects::Config;
+use crate::model::{evaluate, Eval};
+use crate::search::{fit, Param};
+
+/// Acceptance thresholds (documented in docs/simcheck.md).
+pub const MIN_BLOCK_T: f64 = 3.0;
+pub const MIN_REL_GAIN: f64 = 0.01;
+/// Block t statistic an effect must keep to stay in the model in the backward pass.
+pub const MIN_KEEP_T: f64 = 2.0;
+
+/// What the criterion needs to know about a held-out residual.
+#[derive(Debug, Clone, Copy)]
+pub struct ResidStats {
+    pub time_samples: usize,
+    /// Integrated autocorrelation time (samples), averaged over nodes.
+    pub tau_int: f64,
+}
+
+/// [`ResidStats`] of a held-out residual (`len` samples x `n` nodes).
+pub fn resid_stats(resid: &[f64], len: usize, n: usize) -> ResidStats {
+    ResidStats {
+        time_samples: len,
+        tau_int: tau_int(resid, len, n),
+    }
+}
+
+/// Held-out (two-fold) result of a model.
+#[derive(Debug, Clone)]
+pub struct Cv {
+    /// Held-out residual (sim - rec) per sample and node, 0 where unusable.
+    pub resid: Vec<f64>,
+    pub sse: f64,
+    pub count: usize,
+    /// SSE per block.
+    pub block_sse: Vec<f64>,
+    /// SSE per node.
+    pub node_sse: Vec<f64>,
+    /// SSE per block over no-load samples only (force below 2 % of the peak).
+    pub rest_block_sse: Vec<f64>,
+    /// The configuration fitted on each fold's training half.
+    pub fits: [Config; 2],
+}
+
+impl Cv {
+    pub fn rmse(&self) -> f64 {
+        (self.sse / self.count.max(1) as f64).sqrt()
+    }
+}
+
+/// Two-fold cross-validation: fit on one fold's blocks, predict the other.
+pub fn cross_validate(ctx: &Context, starts: &[Config], params: &[Param], max_evals: usize) -> Cv {
+    let ds = ctx.ds;
+    let n = ds.n;
+    let mut resid = vec![0.0; ds.len() * n];
+    let mut fits = Vec::with_capacity(2);
+    let folds: Vec<(Config, Eval)> = std::thread::scope(|sc| {
+        let handles: Vec<_> = (0..2)
+            .map(|f| {
+                sc.spawn(move || {
+                    let train = |i: usize| ctx.fold(i) != f;
+                    let cfg = fit(ctx, starts, params, &train, max_evals);
+                    let ev = evaluate(ctx, &cfg, &train);
+                    (cfg, ev)
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
+            .collect()
+    });
+    for (f, (cfg, ev)) in folds.into_iter().enumerate() {
+        for i in 0..ds.len() {
+            if ctx.fold(i) == f {
+                for k in 0..n {
+                    let idx = i * n + k;
+                    if ctx.usable[idx] {
+                        resid[idx] = ev.pred[idx] - ctx.dom_obs[idx];
+                    }
+                }
+            }
+        }
+        fits.push(cfg);
+    }
+    let mut block_sse = vec![0.0; ctx.n_blocks];
+    let mut node_sse = vec![0.0; n];
+    let mut rest_block_sse = vec![0.0; ctx.n_blocks];
+    let rest_limit = 0.02 * ds.max_force();
+    let mut count = 0;
+    for i in 0..ds.len() {
+        for (k, node) in node_sse.iter_mut().enumerate() {
+            let idx = i * n + k;
+            if ctx.usable[idx] {
+                let r2 = resid[idx] * resid[idx];
+                block_sse[ctx.block[i]] += r2;
+                *node += r2;
+                if ds.force[i] <= rest_limit {
+                    rest_block_sse[ctx.block[i]] += r2;
+                }
+                count += 1;
+            }
+        }
+    }
+    let sse = block_sse.iter().sum();
+    let [a, b]: [Config; 2] = match fits.try_into() {
+        Ok(v) => v,
+        Err(_) => [Config::base(1.0, 0.0), Config::base(1.0, 0.0)],
+    };
+    Cv {
+        resid,
+        sse,
+        count,
+        block_sse,
+        node_sse,
+        rest_block_sse,
+        fits: [a, b],
+    }
+}
+
+/// How strongly a richer model beats a simpler one on held-out data.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct Verdict {
+    pub rmse_before: f64,
+    pub rmse_after: f64,
+    /// Relative fall in held-out SSE.
+    pub rel_gain: f64,
+    /// Mean per-block SSE reduction over its standard error.
+    pub block_t: f64,
+    /// Share of blocks that improved.
+    pub blocks_improved: f64,
+    /// Wilcoxon signed-rank z of the per-block SSE reductions.
+    pub rank_z: f64,
+    /// Effective sample size used by the criterion.
+    pub n_eff: f64,
+    /// n_eff ln(SSE0/SSE1) - k ln(n_eff): positive = the parameters pay for themselves.
+    pub ic_gain: f64,
+    pub accepted: bool,
+    /// Block t statistic of the gain on no-load samples alone (thermal drift must show there:
+    /// temperature moves unloaded nodes, creep does not).
+    pub rest_block_t: f64,
+    /// Relative fall in held-out SSE on no-load samples alone.
+    pub rest_rel_gain: f64,
+    /// Weaker bar for keeping an effect already in the model (backward pass).
+    pub keep: bool,
+    /// Hysteresis only: the size of its contribution relative to the residual on slow and on
+    /// fast ramps (see `diagnose::ramp_betas`).
+    pub ramp_betas: Option<[f64; 2]>,
+}
+
+/// Block t statistic of the SSE reduction from `a` to `b` per block.
+pub fn block_t_of(a: &[f64], b: &[f64]) -> f64 {
+    let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| x - y).collect();
+    let nb = d.len().max(1) as f64;
+    let mean = d.iter().sum::<f64>() / nb;
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (nb - 1.0).max(1.0);
+    let se = (var / nb).sqrt();
+    if se > 0.0 {
+        mean / se
+    } else {
+        0.0
+    }
+}
+
+/// Wilcoxon signed-rank statistic of `d` as a z score (normal approximation, ties ranked by
+/// their mean rank, zeros dropped): positive when the positive values outrank the negative.
+pub fn signed_rank_z(d: &[f64]) -> f64 {
+    let mut v: Vec<f64> = d.iter().copied().filter(|x| *x != 0.0).collect();
+    let n = v.len();
+    if n == 0 {
+        return 0.0;
+    }
+    v.sort_by(|a, b| a.abs().total_cmp(&b.abs()));
+    let mut w_plus = 0.0;
+    let mut i = 0;
+    while i < n {
+        let mut j = i;
+        while j + 1 < n && v[j + 1].abs() == v[i].abs() {
+            j += 1;
+        }
+        let rank = (i + j) as f64 / 2.0 + 1.0;
+        w_plus += rank * v[i..=j].iter().filter(|x| **x > 0.0).count() as f64;
+        i = j + 1;
+    }
+    let nf = n as f64;
+    let mean = nf * (nf + 1.0) / 4.0;
+    let sd = (nf * (nf + 1.0) * (2.0 * nf + 1.0) / 24.0).sqrt();
+    (w_plus - mean) / sd
+}
+
+pub fn compare(before: &Cv, after: &Cv, k: ParamCount, stats: ResidStats) -> Verdict {
+    let d: Vec<f64> = before
+        .block_sse
+        .iter()
+        .zip(&after.block_sse)
+        .map(|(a, b)| a - b)
+        .collect();
+    let nb = d.len().max(1) as f64;
+    let mean = d.iter().sum::<f64>() / nb;
+    let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (nb - 1.0).max(1.0);
+    let se = (var / nb).sqrt();
+    let block_t = if se > 0.0 { mean / se } else { 0.0 };
+    let improved = d.iter().filter(|x| **x > 0.0).count() as f64 / nb;
+    // Signed-rank test over blocks (beside the t statistic): robust where one block dominates
+    // the SSE (a start-up transient), and it weighs how much each block gained. An effect whose
+    // size varies over the recording (a drift that matters in some blocks more than in others)
+    // gains unevenly; the t statistic counts that unevenness as noise, the ranks do not. (It
+    // replaced a sign test, which counted many small gains as much as a few large losses.)
+    let rank_z = signed_rank_z(&d);
+    // Nodes share the stimulus and its errors: count time samples, not node-samples. (Summing
+    // per-node evidence instead lets any flexible per-node term absorb what another effect's
+    // approximate form leaves behind.) Per-node parameters count once per node with data.
+    let n_eff = (stats.time_samples as f64 / stats.tau_int.max(1.0)).max(2.0);
+    let ratio = (before.sse / after.sse.max(1e-300)).max(1e-300);
+    let n_nodes = after.node_sse.iter().filter(|v| **v > 0.0).count();
+    let n_params = k.global + k.per_node * n_nodes;
+    let ic_gain = n_eff * ratio.ln() - n_params as f64 * n_eff.ln();
+    let rel_gain = 1.0 - after.sse / before.sse.max(1e-300);
+    Verdict {
+        rmse_before: before.rmse(),
+        rmse_after: after.rmse(),
+        rel_gain,
+        block_t,
+        blocks_improved: improved,
+        rank_z,
+        n_eff,
+        ic_gain,
+        accepted: rel_gain >= MIN_REL_GAIN
+            && (block_t >= MIN_BLOCK_T || rank_z >= MIN_BLOCK_T)
+            && ic_gain > 0.0,
+        rest_block_t: block_t_of(&before.rest_block_sse, &after.rest_block_sse),
+        rest_rel_gain: {
+            let (b, a): (f64, f64) = (
+                before.rest_block_sse.iter().sum(),
+                after.rest_block_sse.iter().sum(),
+            );
+            if b > 0.0 {
+                1.0 - a / b
+            } else {
+                0.0
+            }
+        },
+        keep: rel_gain >= 0.5 * MIN_REL_GAIN
+            && (block_t >= MIN_KEEP_T || rank_z >= MIN_KEEP_T)
+            && ic_gain > 0.0,
+        ramp_betas: None,
+    }
+}
+
+/// Integrated autocorrelation time of a residual (per node, averaged), in samples.
+pub fn tau_int(resid: &[f64], len: usize, n: usize) -> f64 {
+    let mut total = 0.0;
+    let mut used = 0;
+    let max_lag = (len / 10).clamp(1, 2000);
+    for k in 0..n {
+        let x: Vec<f64> = (0..len).map(|i| resid[i * n + k]).collect();
+        let mean = x.iter().sum::<f64>() / len as f64;
+        let var = x.iter().map(|v| (v - mean).powi(2)).sum::<f64>();
+        if var <= 0.0 {
+            continue;
+        }
+        let mut tau = 1.0;
+        let mut lag = 1;
+        while lag < max_lag {
+            let c: f64 = (0..len - lag)
+                .map(|i| (x[i] - mean) * (x[i + lag] - mean))
+                .sum::<f64>()
+                / var;
+            if c < 0.05 {
+                break;
+            }
+            // Coarser steps at long lags; each lag stands for the ones it skips.
+            let next = if lag < 16 { lag + 1 } else { lag + lag / 8 };
+            tau += 2.0 * c * (next - lag) as f64;
+            lag = next;
+        }
+        total += tau;
+        used += 1;
+    }
+    if used == 0 {
+        1.0
+    } else {
+        total / used as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn block_t_and_sign_test_see_consistent_gains_only() {
+        let before = vec![10.0; 24];
+        let better: Vec<f64> = (0..24).map(|i| 9.0 + 0.01 * i as f64).collect();
+        let noise: Vec<f64> = (0..24)
+            .map(|i| if i % 2 == 0 { 9.0 } else { 11.0 })
+            .collect();
+        assert!(block_t_of(&before, &better) > 10.0);
+        assert!(block_t_of(&before, &noise).abs() < 1.0);
+    }
+
+    #[test]
+    fn signed_rank_z_weighs_the_sizes_of_the_gains() {
+        // 24 blocks, all better: W+ = 300 against a mean of 150 and an sd of 35.
+        let all: Vec<f64> = (1..=24).map(f64::from).collect();
+        assert!((signed_rank_z(&all) - 150.0 / 35.0).abs() < 1e-9);
+        // 18 of 24 better either way (sign test z = 2.45), but the ranks see whether the
+        // gains or the losses are the big ones.
+        let small_losses: Vec<f64> = (1..=24)
+            .map(|i| if i <= 6 { -f64::from(i) } else { f64::from(i) })
+            .collect();
+        let big_losses: Vec<f64> = (1..=24)
+            .map(|i| if i > 18 { -f64::from(i) } else { f64::from(i) })
+            .collect();
+        assert!((signed_rank_z(&small_losses) - 129.0 / 35.0).abs() < 1e-9);
+        assert!((signed_rank_z(&big_losses) - 21.0 / 35.0).abs() < 1e-9);
+        // Ties share their mean rank; a symmetric set is zero; zeros are dropped.
+        assert!(signed_rank_z(&[1.0, -1.0, 2.0, -2.0]).abs() < 1e-12);
+        assert_eq!(signed_rank_z(&[0.0, 0.0]), 0.0);
+    }
+}

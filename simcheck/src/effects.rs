@@ -1,0 +1,184 @@
+//! The effect library's configuration: which effects a model holds and their global
+//! parameters (the per-node ones are solved inside each evaluation, see [`crate::model`]).
+
+/// The effects the tool can name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum EffectKind {
+    CurvatureBaseline,
+    CurvatureSensitivity,
+    Saturation,
+    Creep,
+    Hysteresis,
+    ThermalDrift,
+    Crosstalk,
+    ScanSkew,
+}
+
+impl EffectKind {
+    pub const ALL: [EffectKind; 8] = [
+        EffectKind::CurvatureBaseline,
+        EffectKind::CurvatureSensitivity,
+        EffectKind::Saturation,
+        EffectKind::Creep,
+        EffectKind::Hysteresis,
+        EffectKind::ThermalDrift,
+        EffectKind::Crosstalk,
+        EffectKind::ScanSkew,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            EffectKind::CurvatureBaseline => "curvature_baseline",
+            EffectKind::CurvatureSensitivity => "curvature_sensitivity",
+            EffectKind::Saturation => "saturation",
+            EffectKind::Creep => "creep",
+            EffectKind::Hysteresis => "hysteresis",
+            EffectKind::ThermalDrift => "thermal_drift",
+            EffectKind::Crosstalk => "crosstalk",
+            EffectKind::ScanSkew => "scan_skew",
+        }
+    }
+}
+
+/// Thermal drift: from the recorded temperature, or a latent common-mode factor when the
+/// recording has no temperature column.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Thermal {
+    /// `m = 1 + alpha (T_s - t0)`, `T_s` the temperature low-passed with `tau_s`.
+    Recorded { alpha_per_k: f64, tau_s: f64 },
+    /// `m(t)` piecewise linear through `values` at `knots_s`, fitted with the nodes.
+    Latent { knots_s: Vec<f64>, values: Vec<f64> },
+}
+
+/// Global parameters of the forward model; `None` = effect absent.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Config {
+    pub exponent: f64,
+    /// Resistance floor (ohm); used when `sat_in_base` or the saturation effect is on.
+    pub r_floor_ohm: f64,
+    pub sat_in_base: bool,
+    pub saturation: bool,
+    /// Creep as two or three Prony terms `(c, tau_s)`: `L + sum c lowpass_tau(L)` (fast and
+    /// slow, and a middle one when the criterion pays for it: log-time creep spans decades).
+    /// The amplitudes are
+    /// non-negative (under a held force the sensor's deformation, and so its conductance, only
+    /// grows) and each `tau` is at most `Context::creep_tau_max`.
+    pub creep: Option<Vec<(f64, f64)>>,
+    /// Hysteresis: half-width `r` (N) of the play operators; the amplitudes are per node.
+    pub hysteresis: Option<f64>,
+    /// Hysteresis loop shape: the gap is `gap_r + mix gap_4r` (0: sharp corners; larger:
+    /// rounder loops). One global number, so each node pays for one amplitude only.
+    pub hyst_mix: f64,
+    /// Hysteresis in the load path, as the simulator and the material have it: each node's load
+    /// becomes `F + share gap_k(F)` before the force law, where `gap_k` has the half-widths
+    /// scaled to the node's share of the load (`Context::load_scale`: a node carrying a tenth
+    /// of the load needs ten times the total force to cross the same local play); one global
+    /// share and no per-node amplitude. `None`: the additive form above.
+    pub hyst_share: Option<f64>,
+    /// In-load hysteresis as a Bouc-Wen state instead of the play operators: `F + share z_k`,
+    /// `dz = du - (|du| z + du |z|) / (2 r)` (exponent `hyst_bw_n` = 1) on the node's own load
+    /// `u = F / load_scale` (`r`: the state's saturation, in newtons of the most loaded node's
+    /// load). Unlike the plays it has no return-point memory: a small reversal moves it at
+    /// once and a reload does not retrace, and the loop saturates smoothly. Its input is the
+    /// recorded force through a play of the force noise's width (`Context::force_deadband`):
+    /// without memory the state would otherwise ratchet on the load cell's noise.
+    pub hyst_bouc_wen: bool,
+    /// The Bouc-Wen state's exponent `n` (1: the classic exponential approach to saturation;
+    /// larger: a sharper knee): `dz = du - (|du| z + du |z|) |z|^(n-1) / (2 r^n)`.
+    pub hyst_bw_n: f64,
+    pub thermal: Option<Thermal>,
+    /// Curvature sensitivity: `kappa_s` (1/m) with a curvature column, else `beta` (per unit
+    /// log-baseline shift of the trial).
+    pub curv_sens: Option<f64>,
+    /// Linear form `1 - kappa / v` (or `1 - beta d`) instead of `1 / (1 + kappa / v)`.
+    pub curv_linear: bool,
+    pub curv_base: bool,
+    /// Row crosstalk: switch + thread resistance (ohm).
+    pub crosstalk: Option<f64>,
+    /// Scan skew: time between two node samples (s).
+    pub scan_skew: Option<f64>,
+    /// Row-switch settling (s): the first node of each row lags its input by this much more
+    /// (part of scan_skew; 0 when absent).
+    pub scan_settle: f64,
+}
+
+impl Config {
+    pub fn base(exponent: f64, r_floor_ohm: f64) -> Config {
+        Config {
+            exponent,
+            r_floor_ohm,
+            sat_in_base: r_floor_ohm > 0.0,
+            saturation: false,
+            creep: None,
+            hysteresis: None,
+            hyst_mix: 0.0,
+            hyst_share: None,
+            hyst_bouc_wen: false,
+            hyst_bw_n: 1.0,
+            thermal: None,
+            curv_sens: None,
+            curv_linear: false,
+            curv_base: false,
+            crosstalk: None,
+            scan_skew: None,
+            scan_settle: 0.0,
+        }
+    }
+
+    pub fn has(&self, e: EffectKind) -> bool {
+        match e {
+            EffectKind::CurvatureBaseline => self.curv_base,
+            EffectKind::CurvatureSensitivity => self.curv_sens.is_some(),
+            EffectKind::Saturation => self.saturation,
+            EffectKind::Creep => self.creep.is_some(),
+            EffectKind::Hysteresis => self.hysteresis.is_some(),
+            EffectKind::ThermalDrift => self.thermal.is_some(),
+            EffectKind::Crosstalk => self.crosstalk.is_some(),
+            EffectKind::ScanSkew => self.scan_skew.is_some(),
+        }
+    }
+
+    pub fn without(&self, e: EffectKind) -> Config {
+        let mut c = self.clone();
+        match e {
+            EffectKind::CurvatureBaseline => c.curv_base = false,
+            EffectKind::CurvatureSensitivity => c.curv_sens = None,
+            EffectKind::Saturation => {
+                c.saturation = false;
+                if !c.sat_in_base {
+                    c.r_floor_ohm = 0.0;
+                }
+            }
+            EffectKind::Creep => c.creep = None,
+            EffectKind::Hysteresis => {
+                c.hysteresis = None;
+                c.hyst_share = None;
+                c.hyst_bouc_wen = false;
+                c.hyst_bw_n = 1.0;
+            }
+            EffectKind::ThermalDrift => c.thermal = None,
+            EffectKind::Crosstalk => c.crosstalk = None,
+            EffectKind::ScanSkew => c.scan_skew = None,
+        }
+        c
+    }
+
+    pub fn effects(&self) -> Vec<EffectKind> {
+        EffectKind::ALL
+            .iter()
+            .copied()
+            .filter(|e| self.has(*e))
+            .collect()
+    }
+
+    pub(crate) fn floor(&self) -> f64 {
+        if self.sat_in_base || self.saturation {
+            self.r_floor_ohm.max(0.0)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Most Prony terms a creep model has.
+pub const MAX_CREEP_TERMS: usize = 3;

@@ -1,0 +1,177 @@
+//! report.md: findings first (verdict, effects with parameters, held-out RMSE without -> with
+//! each, evidence), then where the base model's residual is structured, every candidate tested,
+//! notes and figures.
+
+use std::fmt::Write as _;
+
+use crate::data::Dataset;
+use crate::diagnose::Diagnosis;
+use crate::locate::Findings;
+
+/// The whole report.md.
+pub fn markdown(
+    ds: &Dataset,
+    d: &Diagnosis,
+    notes: &[String],
+    figures: &[String],
+    resim: f64,
+) -> String {
+    let mut s = String::new();
+    findings(&mut s, ds, d, notes, resim);
+    let _ = writeln!(
+        s,
+        "\n## Evidence\n\n### Where the base model's residual is structured\n"
+    );
+    evidence(&mut s, &d.base_findings);
+    candidates(&mut s, d);
+    let _ = writeln!(s, "## Figures\n");
+    for fig in figures.iter().filter(|f| f.ends_with(".png")) {
+        let _ = writeln!(s, "![{fig}]({fig})\n");
+    }
+    s
+}
+
+/// Verdict, effects and their evidence, what is unexplained, the base and final fit, notes.
+fn findings(s: &mut String, ds: &Dataset, d: &Diagnosis, notes: &[String], resim: f64) {
+    let unit = ds.map.dom_unit();
+    let _ = writeln!(s, "# Sim vs recording: {}\n", ds.path);
+    let _ = writeln!(s, "## Findings\n");
+    let _ = writeln!(
+        s,
+        "**Verdict: {}.** Held-out RMSE (two-fold, alternating time blocks) {:.4} -> {:.4} {unit} ({:+.1} %).\n",
+        d.verdict,
+        d.rmse_base,
+        d.rmse_final,
+        100.0 * (d.rmse_final / d.rmse_base.max(1e-300) - 1.0)
+    );
+    if d.effects.is_empty() {
+        let _ = writeln!(s, "No effect of the library improved the held-out error by more than its parameters buy.\n");
+    } else {
+        let _ = writeln!(
+            s,
+            "| effect | parameters | held-out RMSE without -> with |\n|---|---|---|"
+        );
+        for e in &d.effects {
+            let p: Vec<String> = e
+                .params
+                .iter()
+                .map(|(k, v)| format!("{k} = {v:.4}"))
+                .collect();
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:.4} -> {:.4} |",
+                e.name,
+                p.join(", "),
+                e.heldout_rmse_before,
+                e.heldout_rmse_after
+            );
+        }
+        let _ = writeln!(s);
+        for e in &d.effects {
+            let _ = writeln!(s, "- **{}**: {}", e.name, e.evidence);
+        }
+        let _ = writeln!(s);
+    }
+    for u in &d.unexplained {
+        let _ = writeln!(
+            s,
+            "- **Unexplained** at nodes {:?}, {:.1}-{:.1} s: {}",
+            u.nodes, u.t_s[0], u.t_s[1], u.description
+        );
+    }
+    let _ = writeln!(s, "\nBase model: force-law exponent {:.3}, resistance floor {:.1} ohm; final: exponent {:.3}, floor {:.1} ohm. Readout: {:?}. {} samples x {} nodes, {:.1} s, analysed in {:.1} s.\n",
+        d.base.exponent, if d.base.sat_in_base { d.base.r_floor_ohm } else { 0.0 }, d.final_cfg.exponent,
+        if d.final_cfg.sat_in_base || d.final_cfg.saturation { d.final_cfg.r_floor_ohm } else { 0.0 },
+        ds.map.kind(), ds.len(), ds.n, ds.duration(), d.seconds);
+    let _ = writeln!(s, "SIM.toml re-simulated by taxel-sim (driven by the recorded force, no noise): RMSE {resim:.4} {unit} over the whole recording.\n");
+    for n in notes {
+        let _ = writeln!(s, "- note: {n}");
+    }
+}
+
+/// Where the base model's residual is structured: memory, correlations, splits, nodes,
+/// press-to-press spread, spans.
+fn evidence(s: &mut String, f: &Findings) {
+    let _ = writeln!(s, "Residual memory: autocorrelation {:.2} at lag 1, {:.2} at 1 s; integrated autocorrelation time {:.0} samples (white noise: 1).\n", f.acf_lag1, f.acf_1s, f.tau_int_samples);
+    let _ = writeln!(
+        s,
+        "| regressor | r | 95 % CI (block bootstrap) | |\n|---|---|---|---|"
+    );
+    for c in &f.correlations {
+        let _ = writeln!(
+            s,
+            "| {} | {:.3} | [{:.3}, {:.3}] | {} |",
+            c.regressor,
+            c.r,
+            c.ci95[0],
+            c.ci95[1],
+            if c.significant { "significant" } else { "" }
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\n| split | groups (mean residual +- 95 % CI) |\n|---|---|"
+    );
+    for sp in &f.splits {
+        let g: Vec<String> = sp
+            .groups
+            .iter()
+            .map(|g| format!("{}: {:.3} +- {:.3}", g.label, g.mean, g.ci95_half))
+            .collect();
+        let _ = writeln!(s, "| {} | {} |", sp.by, g.join("; "));
+    }
+    let _ = writeln!(
+        s,
+        "\n| node | row | col | RMS | noise floor | ratio |\n|---|---|---|---|---|---|"
+    );
+    for nst in &f.nodes {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {:.3} | {:.3} | {:.1} |",
+            nst.node, nst.row, nst.col, nst.rms, nst.noise, nst.ratio
+        );
+    }
+    if let Some(p) = &f.presses {
+        let _ = writeln!(s, "\nPress to press: {} presses, standard deviation of the per-press mean residual {:.3} ({:.0} % of the loaded residual RMS).", p.presses, p.sd_between, 100.0 * p.share_of_rms);
+    }
+    if !f.spans.is_empty() {
+        let _ = writeln!(
+            s,
+            "\nTime spans with the largest residual (windowed RMS over the median window):\n"
+        );
+        for sp in &f.spans {
+            let _ = writeln!(
+                s,
+                "- {:.1}-{:.1} s: {:.1}x",
+                sp.t_s[0], sp.t_s[1], sp.rms_ratio
+            );
+        }
+    }
+}
+
+/// Every candidate tested, what could not be tested, and the acceptance rule.
+fn candidates(s: &mut String, d: &Diagnosis) {
+    let _ = writeln!(s, "\n### Every candidate tested\n\n| round | effect | held-out RMSE before -> after | SSE gain | block t | signed-rank z | blocks better | information gain | accepted | time (s) |\n|---|---|---|---|---|---|---|---|---|---|");
+    for t in &d.trials {
+        let v = &t.verdict;
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.4} -> {:.4} | {:.1} % | {:.1} | {:.1} | {:.0} % | {:.0} | {} | {:.1} |",
+            t.round,
+            t.effect,
+            v.rmse_before,
+            v.rmse_after,
+            100.0 * v.rel_gain,
+            v.block_t,
+            v.rank_z,
+            100.0 * v.blocks_improved,
+            v.ic_gain,
+            if v.accepted { "yes" } else { "no" },
+            t.seconds,
+        );
+    }
+    for (e, why) in &d.skipped {
+        let _ = writeln!(s, "\n- {e} not testable here: {why}");
+    }
+    let _ = writeln!(s, "\nAn effect is accepted when its held-out SSE gain is at least {:.0} %, its block t statistic (or the Wilcoxon signed-rank test over blocks, as a z score) at least {:.0}, and n_eff ln(SSE0/SSE1) exceeds k ln(n_eff) for its k extra parameters (n_eff = time samples / integrated autocorrelation time of the richer model's held-out residual).\n", 100.0 * crate::cv::MIN_REL_GAIN, crate::cv::MIN_BLOCK_T);
+}

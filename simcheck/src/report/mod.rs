@@ -1,0 +1,134 @@
+//! What the diagnosis writes: report.json (for programs), report.md (findings first, then the
+//! evidence and plots), SIM.toml (the start model extended with the fitted base and effects,
+//! loadable by taxel-sim and the publisher's sim source), and the figures (PNG and SVG): the
+//! recording against the simulation before and after, and the residual against the variable
+//! that located each effect, before and after.
+
+mod figures;
+mod markdown;
+mod simtoml;
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::Context as _;
+use serde_json::json;
+use taxel_sim::SensorModel;
+
+use crate::data::Dataset;
+use crate::diagnose::Diagnosis;
+use crate::effects::Config;
+pub use simtoml::{extended_model, resimulate};
+
+/// Writes every output into `dir`; returns the list of files.
+pub fn write_all(
+    dir: &Path,
+    ds: &Dataset,
+    start: &SensorModel,
+    d: &Diagnosis,
+    notes_in: &[String],
+) -> anyhow::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let mut files = Vec::new();
+    let (model, mut notes) = extended_model(start, ds, d);
+    notes.extend(notes_in.iter().cloned());
+    files.push(write_sim_toml(dir, ds, d, &model)?);
+    // The latent temperature, when thermal drift was inferred without a column.
+    let latent_temp: Option<Vec<f64>> = d
+        .latent_m
+        .as_ref()
+        .map(|m| m.iter().map(|f| 25.0 + (f - 1.0) / -0.003).collect());
+    if let Some(lt) = &latent_temp {
+        let p = dir.join("latent_temperature.csv");
+        let mut s = String::from("t_s,temp_c\n");
+        for (t, v) in ds.t.iter().zip(lt) {
+            let _ = writeln!(s, "{t},{v:.4}");
+        }
+        std::fs::write(&p, s).with_context(|| format!("cannot write {}", p.display()))?;
+        files.push(p);
+    }
+    // The check that SIM.toml reproduces the fit when taxel-sim runs it.
+    let (resim_rmse, resim_pred) = resimulate(&model, ds, latent_temp.as_deref());
+    let figures = figures::figures(dir, ds, d, &resim_pred)?;
+    for f in &figures {
+        files.push(dir.join(f));
+    }
+    let j = report_json(ds, d, &notes, &figures, resim_rmse);
+    let jp = dir.join("report.json");
+    std::fs::write(&jp, serde_json::to_string_pretty(&j)? + "\n")
+        .with_context(|| format!("cannot write {}", jp.display()))?;
+    files.push(jp);
+    let mp = dir.join("report.md");
+    std::fs::write(&mp, markdown::markdown(ds, d, &notes, &figures, resim_rmse))
+        .with_context(|| format!("cannot write {}", mp.display()))?;
+    files.push(mp);
+    Ok(files)
+}
+
+/// SIM.toml, with a header naming the recording, the verdict and the effects.
+fn write_sim_toml(
+    dir: &Path,
+    ds: &Dataset,
+    d: &Diagnosis,
+    model: &SensorModel,
+) -> anyhow::Result<PathBuf> {
+    let sim_path = dir.join("SIM.toml");
+    let header = format!(
+        "# Written by taxel-simcheck diagnose from {}\n# verdict: {}; effects: {}\n",
+        ds.path,
+        d.verdict,
+        if d.effects.is_empty() {
+            "none".to_string()
+        } else {
+            d.effects
+                .iter()
+                .map(|e| e.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        }
+    );
+    std::fs::write(&sim_path, header + &model.to_toml_string())
+        .with_context(|| format!("cannot write {}", sim_path.display()))?;
+    Ok(sim_path)
+}
+
+/// report.json's content.
+fn report_json(
+    ds: &Dataset,
+    d: &Diagnosis,
+    notes: &[String],
+    figures: &[String],
+    resim_rmse: f64,
+) -> serde_json::Value {
+    let n = ds.n;
+    let unit = ds.map.dom_unit();
+    json!({
+        "verdict": d.verdict,
+        "effects": d.effects,
+        "unexplained": d.unexplained,
+        "rmse_base": d.rmse_base,
+        "rmse_final": d.rmse_final,
+        "recording": ds.path,
+        "samples": ds.len(),
+        "nodes": n,
+        "readout": format!("{:?}", ds.map.kind()).to_lowercase(),
+        "residual_unit": unit,
+        "base": base_json(&d.base),
+        "final": base_json(&d.final_cfg),
+        "candidates": d.trials,
+        "skipped": d.skipped.iter().map(|(e, w)| json!({"effect": e, "why": w})).collect::<Vec<_>>(),
+        "findings_base": d.base_findings,
+        "findings_final": d.final_findings,
+        "resim_rmse_taxel_sim": resim_rmse,
+        "notes": notes,
+        "figures": figures,
+        "seconds": d.seconds,
+    })
+}
+
+fn base_json(c: &Config) -> serde_json::Value {
+    json!({
+        "exponent": c.exponent,
+        "r_floor_ohm": if c.sat_in_base || c.saturation { c.r_floor_ohm } else { 0.0 },
+    })
+}

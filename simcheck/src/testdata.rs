@@ -1,0 +1,43 @@
+//! Test fixtures shared by the unit tests.
+
+use crate::data::{Dataset, ReadoutMap};
+
+/// One node, presses with independent levels and ramp durations (0.2-2 s) at 100 Hz.
+pub fn presses() -> Dataset {
+    let mut t = Vec::new();
+    let mut force = Vec::new();
+    let mut now = 0.0;
+    for p in 0..40 {
+        let level = 2.0 + (p * 7 % 13) as f64;
+        let ramp = 0.2 + 1.8 * ((p * 5 % 11) as f64 / 10.0);
+        for (dur, from, to) in [
+            (1.0, 0.0, 0.0),
+            (ramp, 0.0, level),
+            (1.0, level, level),
+            (ramp, level, 0.0),
+        ] {
+            let steps = (dur * 100.0) as usize;
+            for s in 0..steps {
+                t.push(now);
+                force.push(from + (to - from) * s as f64 / steps as f64);
+                now += 0.01;
+            }
+        }
+    }
+    let len = t.len();
+    Dataset {
+        path: "presses".into(),
+        rows: 1,
+        cols: 1,
+        n: 1,
+        t,
+        force,
+        kappa: None,
+        temp: None,
+        trial: vec![0; len],
+        n_trials: 1,
+        trial_recorded: false,
+        y: vec![0.0; len],
+        map: ReadoutMap::Resistance,
+    }
+}
