@@ -3,7 +3,16 @@
 //! blocks, and the bounds and scales the effects need (creep's longest time constant, each
 //! node's share of the load, the force noise's deadband).
 
+use std::sync::{Arc, Mutex};
+
 use crate::data::Dataset;
+use crate::model::{Observed, ObservedKey};
+
+/// Most samples the parameter search looks at per evaluation (5 minutes at 50 Hz).
+pub const SEARCH_SAMPLES: usize = 15_000;
+
+/// Most samples the parameter search runs the effects' states through (5 minutes at 100 Hz).
+pub const STATE_SAMPLES: usize = 30_000;
 
 /// Precomputed views of a dataset shared by every evaluation.
 pub struct Context<'a> {
@@ -31,7 +40,13 @@ pub struct Context<'a> {
     /// memoryless hysteresis state sees it: three standard deviations of the force noise,
     /// estimated from the first differences (median absolute difference / 0.954).
     pub force_deadband: f64,
+    /// The observations undone through the floor and crosstalk, for the last few sample sets
+    /// and parameters (see `model::Observed`).
+    pub(crate) observed: ObservedCache,
 }
+
+/// A few [`Observed`]s by what they depend on.
+pub(crate) type ObservedCache = Mutex<Vec<(ObservedKey, Arc<Observed>)>>;
 
 impl<'a> Context<'a> {
     pub fn new(ds: &'a Dataset) -> Context<'a> {
@@ -100,12 +115,27 @@ impl<'a> Context<'a> {
             creep_tau_max,
             load_scale,
             force_deadband,
+            observed: Mutex::new(Vec::new()),
         }
     }
 
-    /// Every how many samples the parameter search looks (about 50 per second).
+    /// Every how many samples the parameter search looks: about 50 per second, and at most
+    /// [`SEARCH_SAMPLES`] samples in all (a long recording is searched on a sparser grid; each
+    /// evaluation still runs the effects' states through every sample, and the held-out
+    /// predictions use every sample).
     pub fn search_stride(&self) -> usize {
-        ((1.0 / self.ds.dt() / 50.0).round() as usize).max(1)
+        let by_rate = ((1.0 / self.ds.dt() / 50.0).round() as usize).max(1);
+        let s = by_rate.max(self.ds.len().div_ceil(SEARCH_SAMPLES));
+        // A multiple of the state stride, so the fit's samples lie on the states' grid.
+        s.div_ceil(self.state_stride()) * self.state_stride()
+    }
+
+    /// On which grid the parameter search runs the effects' states (creep, hysteresis): every
+    /// sample, or every second or third one when a recording is longer than
+    /// [`STATE_SAMPLES`] (a 10-minute recording at 100 Hz: every second sample, 50 Hz). The
+    /// held-out predictions and the final fit run them on every sample.
+    pub fn state_stride(&self) -> usize {
+        self.ds.len().div_ceil(STATE_SAMPLES).max(1)
     }
 
     pub fn fold(&self, i: usize) -> usize {

@@ -60,22 +60,14 @@ pub fn cross_validate(ctx: &Context, starts: &[Config], params: &[Param], max_ev
     let n = ds.n;
     let mut resid = vec![0.0; ds.len() * n];
     let mut fits = Vec::with_capacity(2);
-    let folds: Vec<(Config, Eval)> = std::thread::scope(|sc| {
-        let handles: Vec<_> = (0..2)
-            .map(|f| {
-                sc.spawn(move || {
-                    let train = |i: usize| ctx.fold(i) != f;
-                    let cfg = fit(ctx, starts, params, &train, max_evals);
-                    let ev = evaluate(ctx, &cfg, &train);
-                    (cfg, ev)
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
-            .collect()
-    });
+    let fold = |f: usize| -> (Config, Eval) {
+        let train = |i: usize| ctx.fold(i) != f;
+        let cfg = fit(ctx, starts, params, &train, max_evals);
+        let ev = evaluate(ctx, &cfg, &train);
+        (cfg, ev)
+    };
+    let (a, b) = crate::parallel::join(|| fold(0), || fold(1));
+    let folds = [a, b];
     for (f, (cfg, ev)) in folds.into_iter().enumerate() {
         for i in 0..ds.len() {
             if ctx.fold(i) == f {

@@ -19,15 +19,12 @@ use crate::locate::{locate, Findings};
 use crate::model::evaluate;
 use crate::named::{effect_params, evidence};
 pub use crate::named::{hysteresis_weight, in_load_as_sim, NamedEffect};
-use crate::search::{all_params, base_params, fit_all, refit_params, train_sse, Param};
+use crate::search::{all_params, base_params, fit_all, refit_params, train_sse};
 use crate::unexplained::find_unexplained;
 pub use crate::unexplained::Unexplained;
 
-/// The best candidate of a round: effect, its cross-validation, verdict, starts and params.
-type Best = (EffectKind, Cv, Verdict, Vec<Config>, Vec<Param>);
-
-/// The best variant of one candidate effect: its cross-validation, verdict, starts and params.
-type Variant = (Cv, Verdict, Vec<Config>, Vec<Param>);
+/// The best candidate of a round: effect, its cross-validation and verdict.
+type Best = (EffectKind, Cv, Verdict);
 
 /// Search effort.
 #[derive(Debug, Clone, Copy)]
@@ -105,6 +102,7 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
         cur: base.clone(),
         cur_cv: base_cv.clone(),
         trials: Vec::new(),
+        last: None,
     };
     for round in 1..=opts.max_effects {
         if !sel.round(round) {
@@ -213,6 +211,8 @@ struct Selection<'a> {
     cur: Config,
     cur_cv: Cv,
     trials: Vec<Trial>,
+    /// The effect that joined last and the held-out result of the model before it joined.
+    last: Option<(EffectKind, Cv)>,
 }
 
 impl Selection<'_> {
@@ -225,7 +225,7 @@ impl Selection<'_> {
                 continue;
             }
             let tc = Instant::now();
-            let Some((cv, v, starts, params)) = self.best_variant(e) else {
+            let Some((cv, v)) = self.best_variant(e) else {
                 continue;
             };
             self.trials.push(Trial {
@@ -235,21 +235,23 @@ impl Selection<'_> {
                 seconds: tc.elapsed().as_secs_f64(),
             });
             if v.accepted && best.as_ref().is_none_or(|b| v.rel_gain > b.2.rel_gain) {
-                best = Some((e, cv, v, starts, params));
+                best = Some((e, cv, v));
             }
         }
-        let Some((_, _, _, starts, params)) = best else {
+        let Some((e, cv, _)) = best else {
             return false;
         };
-        self.join(&starts, &params);
+        let before = self.cur_cv.clone();
+        self.join(&cv.fits);
+        self.last = Some((e, before));
         true
     }
 
     /// Effect `e`'s variants (a latent drift's resolutions, ...) held out against the current
     /// model: the one the criterion likes best.
-    fn best_variant(&self, e: EffectKind) -> Option<Variant> {
+    fn best_variant(&self, e: EffectKind) -> Option<(Cv, Verdict)> {
         let ds = self.ctx.ds;
-        let mut tried: Option<Variant> = None;
+        let mut tried: Option<(Cv, Verdict)> = None;
         for (starts, params) in candidates(self.ctx, &self.cur, e) {
             let Some(first) = starts.first() else {
                 continue;
@@ -259,18 +261,23 @@ impl Selection<'_> {
             let mut v = compare(&self.cur_cv, &cv, k, resid_stats(&cv.resid, ds.len(), ds.n));
             signature_check(ds, e, &self.cur_cv, &cv, &mut v);
             if tried.as_ref().is_none_or(|t| v.ic_gain > t.1.ic_gain) {
-                tried = Some((cv, v, starts, params));
+                tried = Some((cv, v));
             }
         }
         tried
     }
 
-    /// The accepted candidate joins: all parameters are refitted on the whole recording, and
-    /// the refitted model is held out the way the next round's candidates will be.
-    fn join(&mut self, starts: &[Config], params: &[Param]) {
+    /// The accepted candidate joins: all parameters are refitted on the whole recording, from
+    /// the better (on the whole recording) of the candidate's two training-fold fits, and the
+    /// refitted model is held out the way the next round's candidates will be.
+    fn join(&mut self, fold_fits: &[Config]) {
         let ctx = self.ctx;
         let has_kappa = ctx.ds.kappa.is_some();
-        let added = fit_all(ctx, starts, params, self.ev_n);
+        let added = fold_fits
+            .iter()
+            .map(|c| (c, train_sse(ctx, c, &|_| true)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map_or_else(|| self.cur.clone(), |(c, _)| c.clone());
         let joint = |start: &Config| {
             fit_all(
                 ctx,
@@ -312,7 +319,9 @@ impl Selection<'_> {
 
     /// Backward pass: drops an effect the others made unnecessary, until every effect left
     /// keeps its place; returns each remaining effect's held-out contribution (the reduced
-    /// model's cross-validation and the verdict).
+    /// model's cross-validation and the verdict). The model without the effect that joined
+    /// last is the previous round's model, whose held-out result is at hand (held out the same
+    /// way: every parameter refitted on each training fold); it is not computed again.
     fn backward(&mut self) -> BTreeMap<EffectKind, (Cv, Verdict)> {
         let ctx = self.ctx;
         let ds = ctx.ds;
@@ -324,12 +333,15 @@ impl Selection<'_> {
             let mut dropped = false;
             for &e in &effects {
                 let minus = self.cur.without(e);
-                let cv_minus = cross_validate(
-                    ctx,
-                    std::slice::from_ref(&minus),
-                    &refit_params(&minus, has_kappa),
-                    self.ev_n,
-                );
+                let cv_minus = match &self.last {
+                    Some((last, cv)) if *last == e => cv.clone(),
+                    _ => cross_validate(
+                        ctx,
+                        std::slice::from_ref(&minus),
+                        &refit_params(&minus, has_kappa),
+                        self.ev_n,
+                    ),
+                };
                 let mut v = compare(
                     &cv_minus,
                     &self.cur_cv,
@@ -345,6 +357,7 @@ impl Selection<'_> {
                         self.ev_n * 2,
                     );
                     self.cur_cv = cv_minus;
+                    self.last = None;
                     dropped = true;
                     break;
                 }

@@ -5,37 +5,40 @@
 use crate::data::Dataset;
 use crate::effects::{Config, MAX_CREEP_TERMS};
 
-/// The load transform: creep, then the power law. (Hysteresis enters as its own per-node
-/// term, see [`play_gap`].)
-/// Only every `every`-th sample gets its power law (the others are left 0: the parameter
-/// search looks at every `stride`-th sample only); the creep states follow every sample.
+/// The load transform: creep on the load `f` (hysteresis enters as its own per-node term, see
+/// [`crate::numeric::play_gap`], or in `f` itself); the load, clamped at 0, is written for the
+/// samples where `need` holds, in order (every sample when `None`; the parameter search looks
+/// at every `stride`-th training sample only), and the creep states follow every sample. A low-pass's
+/// step factor is computed once per distinct sample interval (recordings are evenly sampled),
+/// not once per sample. The force law is applied by the caller.
 pub fn load_series(
     f: impl Iterator<Item = f64>,
     dt: &[f64],
     cfg: &Config,
     tau_max: f64,
-    every: usize,
+    need: Option<&[bool]>,
     out: &mut Vec<f64>,
 ) {
-    let every = every.max(1);
     out.clear();
     let mut s = [0.0f64; MAX_CREEP_TERMS];
+    let mut step = [(f64::NAN, 0.0f64); MAX_CREEP_TERMS];
     for (i, fi) in f.enumerate() {
         let mut l = fi.max(0.0);
         if let Some(terms) = &cfg.creep {
             let base = l;
-            for (st, &(c, tau)) in s.iter_mut().zip(terms) {
+            for ((st, &(c, tau)), cache) in s.iter_mut().zip(terms).zip(step.iter_mut()) {
                 if i > 0 {
-                    *st += (base - *st) * (1.0 - (-dt[i] / tau.min(tau_max)).exp());
+                    if cache.0 != dt[i] {
+                        *cache = (dt[i], 1.0 - (-dt[i] / tau.min(tau_max)).exp());
+                    }
+                    *st += (base - *st) * cache.1;
                 }
                 l += c * *st;
             }
         }
-        out.push(if i % every == 0 {
-            l.max(0.0).powf(cfg.exponent)
-        } else {
-            0.0
-        });
+        if need.is_none_or(|m| m[i]) {
+            out.push(l.max(0.0));
+        }
     }
 }
 
@@ -54,15 +57,16 @@ pub fn bouc_wen_load<'a>(
     deadband: f64,
 ) -> impl Iterator<Item = f64> + 'a {
     let r = r.max(1e-12);
+    let (inv_sc, inv_r, inv_2r) = (1.0 / sc, 1.0 / r, 0.5 / r);
     let (mut z, mut u_prev, mut play) = (0.0f64, 0.0f64, 0.0f64);
     force.iter().map(move |&fi| {
         let l = fi.max(0.0);
         play = play.clamp(l - deadband, l + deadband);
-        let u = play.max(0.0) / sc;
+        let u = play.max(0.0) * inv_sc;
         let du = u - u_prev;
         u_prev = u;
         if du != 0.0 {
-            z += du - (du.abs() * z + du * z.abs()) * knee.at(z.abs() / r) / (2.0 * r);
+            z += du - (du.abs() * z + du * z.abs()) * knee.at(z.abs() * inv_r) * inv_2r;
         }
         z = z.clamp(-r, r);
         fi + share * sc * z

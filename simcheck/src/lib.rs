@@ -28,6 +28,7 @@ pub mod locate;
 pub mod model;
 pub mod named;
 pub mod numeric;
+pub mod parallel;
 pub mod refworld;
 pub mod report;
 pub mod search;

@@ -13,7 +13,7 @@ use crate::data::ReadoutMap;
 use crate::effects::{Config, Thermal};
 use crate::forms::{bouc_wen_load, load_series, max_scan_skew, Knee};
 pub use crate::numeric::{centre_by_level, play_gap, solve_spd};
-use crate::numeric::{hat, lowpass};
+use crate::numeric::{hat, lowpass, PowTable};
 
 /// Result of one evaluation.
 pub struct Eval {
@@ -50,15 +50,24 @@ pub fn evaluate_with(
     let mut dt: Vec<f64> = Vec::with_capacity(len);
     dt.push(ds.dt());
     dt.extend(ds.t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
-    let terms = Terms::new(ctx, cfg, &dt, stride, want_pred);
+    // The samples the per-node fit looks at.
+    let fit_idx: Vec<usize> = (0..len).step_by(stride).filter(|&i| train(i)).collect();
+    // The effects' states run on every sample, or, in the search on a long recording, on every
+    // `state_stride`-th (the fit's samples lie on that grid).
+    let step = ctx.state_stride();
+    let step = if !want_pred && stride.is_multiple_of(step) {
+        step
+    } else {
+        1
+    };
+    let terms = Terms::new(ctx, cfg, &fit_idx, want_pred, step);
     let (mut m, mut latent) = thermal_factor(ctx, cfg, &dt);
-    let obs = Observed::new(ctx, cfg, stride, want_pred);
+    let obs = Observed::cached(ctx, cfg, &fit_idx);
     let fit = NodeFit {
         ctx,
         terms: &terms,
         obs: &obs,
-        train,
-        stride,
+        fit_idx: &fit_idx,
         r: cfg.floor(),
     };
     let mut theta = vec![vec![0.0; terms.lay.dim()]; n];
@@ -67,9 +76,7 @@ pub fn evaluate_with(
         if let Some((knots, values)) = &latent {
             apply_latent(ctx, knots, values, &mut m);
         }
-        for (k, th) in theta.iter_mut().enumerate() {
-            *th = fit.node(k, &m);
-        }
+        theta = crate::parallel::map(n, |k| fit.node(k, &m));
         // Latent thermal: refit the common-mode factor on the knots.
         if let Some((knots, values)) = &mut latent {
             if it + 1 == iterations {
@@ -78,7 +85,8 @@ pub fn evaluate_with(
             *values = fit.latent(knots, &theta);
         }
     }
-    let (pred, train_sse) = predict(ctx, cfg, &terms, &theta, &m, train, stride, want_pred);
+    let looked: &[usize] = if want_pred { &[] } else { &fit_idx };
+    let (pred, train_sse) = predict(ctx, cfg, &terms, &theta, &m, looked, want_pred);
     Eval {
         pred,
         theta,
@@ -92,61 +100,100 @@ pub fn evaluate_with(
 /// acts in the load path), and its time slopes when scan skew is on: node `k` reads the force
 /// `k * dt_node` later in the frame, to first order `p_k(t) = p(t) + k dt_node dp/dt`, and the
 /// first node of each row also settles after the row switch, a lag of `scan_settle`.
+/// The effects' states run on every `step`-th sample (1 unless a long recording is searched,
+/// see [`Context::state_stride`]); the series hold every sample of that grid, or, in the
+/// search (`compact`), only the samples the fit looks at, in order.
 struct Loads {
     loads: Vec<Vec<f64>>,
     slopes: Vec<Vec<f64>>,
     skew: f64,
     settle: f64,
     cols: usize,
+    step: usize,
+    compact: bool,
+}
+
+/// The grid the effects' states run on: every `step`-th sample's time, interval, force and
+/// whether the fit needs its load (all when `None`).
+struct Grid<'a> {
+    t: Vec<f64>,
+    dt: Vec<f64>,
+    force: std::borrow::Cow<'a, [f64]>,
+    need: Option<Vec<bool>>,
+}
+
+impl<'a> Grid<'a> {
+    fn new(ctx: &'a Context, need: Option<&[bool]>, step: usize) -> Grid<'a> {
+        let ds = ctx.ds;
+        let t: Vec<f64> = ds.t.iter().step_by(step).copied().collect();
+        let mut dt: Vec<f64> = Vec::with_capacity(t.len());
+        dt.push(step as f64 * ds.dt());
+        dt.extend(t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
+        let force = if step == 1 {
+            std::borrow::Cow::Borrowed(&ds.force[..])
+        } else {
+            std::borrow::Cow::Owned(ds.force.iter().step_by(step).copied().collect())
+        };
+        let need = need.map(|m| m.iter().step_by(step).copied().collect());
+        Grid { t, dt, force, need }
+    }
+
+    /// The load series of the load `f` (see [`load_series`]) and its largest value.
+    fn series(&self, f: impl Iterator<Item = f64>, cfg: &Config, tau_max: f64) -> Vec<f64> {
+        let mut p = Vec::with_capacity(self.t.len());
+        load_series(f, &self.dt, cfg, tau_max, self.need.as_deref(), &mut p);
+        p
+    }
 }
 
 impl Loads {
-    fn new(ctx: &Context, cfg: &Config, dt: &[f64], skew: f64, every: usize) -> Loads {
+    fn new(ctx: &Context, cfg: &Config, skew: f64, need: Option<&[bool]>, step: usize) -> Loads {
         let ds = ctx.ds;
         let len = ds.len();
+        let grid = Grid::new(ctx, need, step);
+        let tau_max = ctx.creep_tau_max;
         let knee = cfg.hyst_bouc_wen.then(|| Knee::new(cfg.hyst_bw_n));
-        let loads: Vec<Vec<f64>> = match (cfg.hysteresis, cfg.hyst_share) {
-            (Some(r), Some(share)) => ctx
-                .load_scale
-                .iter()
-                .map(|&sc| {
-                    if let Some(knee) = &knee {
-                        let f = bouc_wen_load(&ds.force, r, knee, share, sc, ctx.force_deadband);
-                        let mut p = Vec::with_capacity(len);
-                        load_series(f, dt, cfg, ctx.creep_tau_max, every, &mut p);
-                        return p;
-                    }
-                    // The two play operators of `play_gap`, run inline (no temporary series).
-                    let (r1, r4) = (r * sc, 4.0 * r * sc);
-                    let mut z: Option<(f64, f64)> = None;
-                    let f = ds.force.iter().map(|&fi| {
-                        let l = fi.max(0.0);
-                        let (a, b) = z.map_or((l + r1, l + r4), |(a, b)| {
-                            (a.clamp(l - r1, l + r1), b.clamp(l - r4, l + r4))
-                        });
-                        z = Some((a, b));
-                        fi + share * ((a - l) + cfg.hyst_mix * (b - l))
+        let mut loads: Vec<Vec<f64>> = match (cfg.hysteresis, cfg.hyst_share) {
+            (Some(r), Some(share)) => crate::parallel::map(ctx.load_scale.len(), |k| {
+                let sc = ctx.load_scale[k];
+                if let Some(knee) = &knee {
+                    let f = bouc_wen_load(&grid.force, r, knee, share, sc, ctx.force_deadband);
+                    return grid.series(f, cfg, tau_max);
+                }
+                // The two play operators of `play_gap`, run inline (no temporary series).
+                let (r1, r4) = (r * sc, 4.0 * r * sc);
+                let mut z: Option<(f64, f64)> = None;
+                let f = grid.force.iter().map(|&fi| {
+                    let l = fi.max(0.0);
+                    let (a, b) = z.map_or((l + r1, l + r4), |(a, b)| {
+                        (a.clamp(l - r1, l + r1), b.clamp(l - r4, l + r4))
                     });
-                    let mut p = Vec::with_capacity(len);
-                    load_series(f, dt, cfg, ctx.creep_tau_max, every, &mut p);
-                    p
-                })
-                .collect(),
-            _ => {
-                let mut p = Vec::new();
-                let f = ds.force.iter().copied();
-                load_series(f, dt, cfg, ctx.creep_tau_max, every, &mut p);
-                vec![p]
-            }
+                    z = Some((a, b));
+                    fi + share * ((a - l) + cfg.hyst_mix * (b - l))
+                });
+                grid.series(f, cfg, tau_max)
+            }),
+            _ => vec![grid.series(grid.force.iter().copied(), cfg, tau_max)],
         };
+        // The force law, p = L^n.
+        let l_max = loads
+            .iter()
+            .map(|p| p.iter().fold(0.0f64, |a, &b| a.max(b)))
+            .fold(0.0f64, f64::max);
+        let law = PowTable::new(l_max, cfg.exponent);
+        for p in loads.iter_mut() {
+            p.iter_mut().for_each(|v| *v = law.at(*v));
+        }
+        let t = &grid.t;
         let slopes: Vec<Vec<f64>> = if skew != 0.0 {
+            let m = t.len();
             loads
                 .iter()
                 .map(|p| {
-                    (0..len)
-                        .map(|i| {
-                            let (a, b) = (i.saturating_sub(1), (i + 1).min(len - 1));
-                            let span = ds.t[b] - ds.t[a];
+                    (0..m)
+                        .map(|j| {
+                            let (a, b) = (j.saturating_sub(1), (j + 1).min(m - 1));
+                            let span = t[b] - t[a];
                             if span > 0.0 {
                                 (p[b] - p[a]) / span
                             } else {
@@ -159,18 +206,24 @@ impl Loads {
         } else {
             Vec::new()
         };
+        let compact = grid.need.is_some();
+        debug_assert!(compact || loads.iter().all(|p| p.len() == len.div_ceil(step)));
         Loads {
             loads,
             slopes,
             skew,
             settle: cfg.scan_settle,
             cols: ds.cols.max(1),
+            step,
+            compact,
         }
     }
 
-    /// The force-law term `p` of node `k` at sample `i`.
-    fn at(&self, k: usize, i: usize) -> f64 {
+    /// The force-law term `p` of node `k` at sample `i` (a multiple of `step`), the `jj`-th the
+    /// fit looks at.
+    fn at(&self, k: usize, i: usize, jj: usize) -> f64 {
         let j = k.min(self.loads.len() - 1);
+        let i = if self.compact { jj } else { i / self.step };
         if self.slopes.is_empty() {
             self.loads[j][i]
         } else {
@@ -196,12 +249,16 @@ struct Terms {
 }
 
 impl Terms {
-    fn new(ctx: &Context, cfg: &Config, dt: &[f64], stride: usize, want_pred: bool) -> Terms {
+    fn new(ctx: &Context, cfg: &Config, fit_idx: &[usize], want_pred: bool, step: usize) -> Terms {
         let ds = ctx.ds;
         let skew = cfg.scan_skew.map_or(0.0, |v| v.min(max_scan_skew(ds)));
         // The slopes scan skew needs read the neighbours of each sample.
-        let every = if want_pred || skew != 0.0 { 1 } else { stride };
-        let loads = Loads::new(ctx, cfg, dt, skew, every);
+        let need: Option<Vec<bool>> = (!want_pred && skew == 0.0).then(|| {
+            let mut need = vec![false; ds.len()];
+            fit_idx.iter().for_each(|&i| need[i] = true);
+            need
+        });
+        let loads = Loads::new(ctx, cfg, skew, need.as_deref(), step);
         let sens = sensitivity(ctx, cfg);
         let curv_x = curvature_regressor(ctx, cfg);
         let hyst = additive_hysteresis(ctx, cfg);
@@ -219,8 +276,9 @@ impl Terms {
         }
     }
 
-    /// The per-node regressors at sample `i` (written into `xrow`, `lay.dim()` long).
-    fn row(&self, k: usize, i: usize, xrow: &mut [f64]) {
+    /// The per-node regressors at sample `i`, the `j`-th the fit looks at (written into `xrow`,
+    /// `lay.dim()` long).
+    fn row(&self, k: usize, i: usize, j: usize, xrow: &mut [f64]) {
         let pdim = xrow.len();
         xrow.iter_mut().for_each(|v| *v = 0.0);
         xrow[0] = 1.0;
@@ -230,18 +288,19 @@ impl Terms {
         if self.lay.hyst {
             xrow[pdim - 2] = self.sens[i] * self.hyst[i];
         }
-        xrow[pdim - 1] = self.sens[i] * self.loads.at(k, i);
+        xrow[pdim - 1] = self.sens[i] * self.loads.at(k, i, j);
     }
 
-    /// Node `k`'s conductance before the thermal factor at sample `i`, with parameters `th`.
-    fn z(&self, th: &[f64], k: usize, i: usize) -> f64 {
+    /// Node `k`'s conductance before the thermal factor at sample `i` (the `j`-th the fit looks
+    /// at), with parameters `th`.
+    fn z(&self, th: &[f64], k: usize, i: usize, j: usize) -> f64 {
         let hv = if self.lay.hyst {
             self.sens[i] * self.hyst[i]
         } else {
             0.0
         };
         let cx = if self.lay.curv_k { self.curv_x[i] } else { 0.0 };
-        zhat(th, &self.lay, cx, hv, self.sens[i] * self.loads.at(k, i))
+        zhat(th, &self.lay, cx, hv, self.sens[i] * self.loads.at(k, i, j))
     }
 }
 
@@ -349,25 +408,52 @@ fn additive_hysteresis(ctx: &Context, cfg: &Config) -> Vec<f64> {
 }
 
 /// The observed conductance undone through the crosstalk and the floor (`g2`), with the weight
-/// of each observation in the residual domain (0: unusable or not looked at).
-struct Observed {
+/// of each observation in the residual domain (0: unusable), at the fit's samples only, node
+/// by node (`k * m + j` for the `j`-th of `m` samples: each node's fit reads its own run).
+pub struct Observed {
     g2: Vec<f64>,
     wgt: Vec<f64>,
 }
 
+/// What [`Observed`] depends on: the samples (their count, first and sum) and the floor and
+/// switch resistance it was undone through.
+pub type ObservedKey = (usize, usize, usize, u64, u64);
+
 impl Observed {
-    fn new(ctx: &Context, cfg: &Config, stride: usize, want_pred: bool) -> Observed {
+    /// [`Observed::new`], kept in the context for the next evaluation with the same samples,
+    /// floor and crosstalk (most evaluations of a search change neither).
+    fn cached(ctx: &Context, cfg: &Config, fit_idx: &[usize]) -> std::sync::Arc<Observed> {
+        let key: ObservedKey = (
+            fit_idx.len(),
+            fit_idx.first().copied().unwrap_or(0),
+            fit_idx.iter().sum(),
+            cfg.floor().to_bits(),
+            cfg.crosstalk.unwrap_or(0.0).to_bits(),
+        );
+        if let Ok(cache) = ctx.observed.lock() {
+            if let Some((_, o)) = cache.iter().find(|(k, _)| *k == key) {
+                return o.clone();
+            }
+        }
+        let o = std::sync::Arc::new(Observed::new(ctx, cfg, fit_idx));
+        if let Ok(mut cache) = ctx.observed.lock() {
+            if cache.len() >= 8 {
+                cache.remove(0);
+            }
+            cache.push((key, o.clone()));
+        }
+        o
+    }
+
+    fn new(ctx: &Context, cfg: &Config, fit_idx: &[usize]) -> Observed {
         let ds = ctx.ds;
-        let (len, n) = (ds.len(), ds.n);
+        let n = ds.n;
         let r = cfg.floor();
         let rs = cfg.crosstalk.unwrap_or(0.0);
         let (rows, cols) = (ds.rows, ds.cols);
-        let mut g2 = vec![0.0; len * n];
-        let mut wgt = vec![0.0; len * n];
-        for i in 0..len {
-            if !want_pred && i % stride != 0 {
-                continue;
-            }
+        let mut g2 = vec![0.0; fit_idx.len() * n];
+        let mut wgt = vec![0.0; fit_idx.len() * n];
+        for (j, &i) in fit_idx.iter().enumerate() {
             for row in 0..rows {
                 let base = i * n + row * cols;
                 let srow: f64 = if rs > 0.0 {
@@ -376,15 +462,17 @@ impl Observed {
                     0.0
                 };
                 let xf = (1.0 - rs * srow).max(0.05);
-                for idx in base..base + cols {
+                for c in 0..cols {
+                    let idx = base + c;
                     let g1 = ctx.g_obs[idx] / xf;
                     let rg = r * g1;
                     if !ctx.usable[idx] || rg >= 0.9 {
                         continue;
                     }
-                    g2[idx] = g1 / (1.0 - rg);
+                    let out = (row * cols + c) * fit_idx.len() + j;
+                    g2[out] = g1 / (1.0 - rg);
                     let d = ds.map.ddom_dg(ctx.g_obs[idx]) * xf * (1.0 - rg).powi(2);
-                    wgt[idx] = d * d;
+                    wgt[out] = d * d;
                 }
             }
         }
@@ -397,8 +485,8 @@ struct NodeFit<'a> {
     ctx: &'a Context<'a>,
     terms: &'a Terms,
     obs: &'a Observed,
-    train: &'a dyn Fn(usize) -> bool,
-    stride: usize,
+    /// The samples fitted on.
+    fit_idx: &'a [usize],
     r: f64,
 }
 
@@ -409,7 +497,7 @@ impl NodeFit<'_> {
     /// weights would favour the highest-resistance samples).
     fn node(&self, k: usize, m: &[f64]) -> Vec<f64> {
         let ds = self.ctx.ds;
-        let (len, n) = (ds.len(), ds.n);
+        let n = ds.n;
         let pdim = self.terms.lay.dim();
         let gn_passes = if matches!(ds.map, ReadoutMap::Amplifier { .. }) {
             0
@@ -421,16 +509,17 @@ impl NodeFit<'_> {
         for pass in 0..=gn_passes {
             let mut a = vec![0.0; pdim * pdim];
             let mut b = vec![0.0; pdim];
-            for i in (0..len).step_by(self.stride) {
+            let base = k * self.fit_idx.len();
+            for (j, &i) in self.fit_idx.iter().enumerate() {
                 let idx = i * n + k;
-                let w = self.obs.wgt[idx];
-                if w == 0.0 || !(self.train)(i) {
+                let w = self.obs.wgt[base + j];
+                if w == 0.0 {
                     continue;
                 }
                 let mi = m[i];
-                self.terms.row(k, i, &mut xrow);
+                self.terms.row(k, i, j, &mut xrow);
                 let (z, w) = if pass == 0 {
-                    (self.obs.g2[idx] / mi, w * mi * mi)
+                    (self.obs.g2[base + j] / mi, w * mi * mi)
                 } else {
                     let zh: f64 = xrow.iter().zip(th.iter()).map(|(x, t)| x * t).sum();
                     let zh = zh.max(1e-15);
@@ -472,22 +561,19 @@ impl NodeFit<'_> {
     /// mean of 1.
     fn latent(&self, knots: &[f64], theta: &[Vec<f64>]) -> Vec<f64> {
         let ds = self.ctx.ds;
-        let (len, n) = (ds.len(), ds.n);
+        let n = ds.n;
         let kk = knots.len();
         let mut a = vec![0.0; kk * kk];
         let mut b = vec![0.0; kk];
-        for i in (0..len).step_by(self.stride) {
-            if !(self.train)(i) {
-                continue;
-            }
+        for (jj, &i) in self.fit_idx.iter().enumerate() {
             let (j, w) = hat(knots, ds.t[i]);
             for (k, th) in theta.iter().enumerate().take(n) {
-                let idx = i * n + k;
+                let idx = k * self.fit_idx.len() + jj;
                 let wt = self.obs.wgt[idx];
                 if wt == 0.0 {
                     continue;
                 }
-                let q = self.terms.z(th, k, i);
+                let q = self.terms.z(th, k, i, jj);
                 let phi = [(j, (1.0 - w) * q), (j + 1, w * q)];
                 for &(u, xu) in &phi {
                     if u >= kk {
@@ -532,17 +618,16 @@ fn accumulate(a: &mut [f64], b: &mut [f64], xrow: &[f64], w: f64, z: f64) {
     }
 }
 
-/// The forward prediction of every sample (with `want_pred`), or only the training SSE over
-/// the samples the search looks at.
-#[allow(clippy::too_many_arguments, clippy::needless_range_loop)] // index-heavy numeric code
+/// The forward prediction of every sample (with `want_pred`), or only the SSE over the
+/// samples in `looked`. Rows are independent (crosstalk couples the nodes of a row): each
+/// row's SSE is summed over samples in order and the rows' sums in row order.
 fn predict(
     ctx: &Context,
     cfg: &Config,
     terms: &Terms,
     theta: &[Vec<f64>],
     m: &[f64],
-    train: &dyn Fn(usize) -> bool,
-    stride: usize,
+    looked: &[usize],
     want_pred: bool,
 ) -> (Vec<f64>, f64) {
     let ds = ctx.ds;
@@ -550,22 +635,19 @@ fn predict(
     let r = cfg.floor();
     let rs = cfg.crosstalk.unwrap_or(0.0);
     let (rows, cols) = (ds.rows, ds.cols);
-    let mut pred = if want_pred {
-        vec![0.0; len * n]
-    } else {
-        Vec::new()
-    };
-    let mut train_sse = 0.0;
-    let mut gs = vec![0.0; cols];
-    for i in 0..len {
-        if !want_pred && (i % stride != 0 || !train(i)) {
-            continue;
-        }
-        for row in 0..rows {
+    let row_of = |row: usize| -> (Vec<f64>, f64) {
+        let mut out = if want_pred {
+            Vec::with_capacity(len * cols)
+        } else {
+            Vec::new()
+        };
+        let mut sse = 0.0;
+        let mut gs = vec![0.0; cols];
+        let mut one = |i: usize, j: usize| {
             let mut srow = 0.0;
             for (c, gc) in gs.iter_mut().enumerate() {
                 let k = row * cols + c;
-                let z = terms.z(&theta[k], k, i);
+                let z = terms.z(&theta[k], k, i, j);
                 let g = (m[i] * z).max(1e-12);
                 *gc = g / (1.0 + r * g);
                 srow += *gc;
@@ -575,10 +657,31 @@ fn predict(
                 let idx = i * n + row * cols + c;
                 let v = ds.map.dom(ds.map.from_g(gc * xf));
                 if want_pred {
-                    pred[idx] = v;
+                    out.push(v);
                 } else if ctx.usable[idx] {
-                    train_sse += (v - ctx.dom_obs[idx]).powi(2);
+                    sse += (v - ctx.dom_obs[idx]).powi(2);
                 }
+            }
+        };
+        if want_pred {
+            (0..len).for_each(|i| one(i, i));
+        } else {
+            looked.iter().enumerate().for_each(|(j, &i)| one(i, j));
+        }
+        (out, sse)
+    };
+    let per_row = crate::parallel::map(rows, row_of);
+    let train_sse = per_row.iter().map(|r| r.1).sum();
+    let mut pred = if want_pred {
+        vec![0.0; len * n]
+    } else {
+        Vec::new()
+    };
+    if want_pred {
+        for (row, (vals, _)) in per_row.iter().enumerate() {
+            for i in 0..len {
+                let dst = i * n + row * cols;
+                pred[dst..dst + cols].copy_from_slice(&vals[i * cols..(i + 1) * cols]);
             }
         }
     }

@@ -1,0 +1,26 @@
+//! The diagnosis's speed on a 10-minute 4 x 4 recording at 100 Hz (issue 20's target: at most
+//! 10 s on the project's 2-core machine): the reference world's two-effect case (hysteresis and
+//! thermal drift, temperature logged), seed 9, generated in memory, then diagnosed.
+//! `cargo bench -p taxel-simcheck --bench diagnose` (about 3 minutes: ten diagnoses).
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use taxel_simcheck::data::Dataset;
+use taxel_simcheck::diagnose::{diagnose, Options};
+use taxel_simcheck::refworld::{generate, Case};
+
+fn ten_minutes(c: &mut Criterion) {
+    let rec = generate(Case::TwoEffects, 9, 600.0);
+    let start = taxel_sim::SensorModel::default();
+    let Ok((ds, _)) = Dataset::from_recording(rec, 4, 4, &start.readout, true) else {
+        return;
+    };
+    let mut g = c.benchmark_group("diagnose");
+    g.sample_size(10);
+    g.bench_function("two_effects_600s_4x4_100hz", |b| {
+        b.iter(|| diagnose(&ds, &start, &Options::default()))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, ten_minutes);
+criterion_main!(benches);
