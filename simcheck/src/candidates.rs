@@ -5,7 +5,7 @@
 use crate::context::Context;
 use crate::effects::{Config, EffectKind, Thermal};
 use crate::forms::{latent_knots, latent_knots_n, latent_resolutions};
-use crate::search::{refit_params, Param};
+use crate::search::{law_params, refit_params, Param};
 
 /// Whether an effect can be tested on this recording, and why not.
 pub fn applicable(ctx: &Context, cur: &Config, e: EffectKind) -> Result<(), &'static str> {
@@ -72,7 +72,7 @@ pub fn candidate(ctx: &Context, cur: &Config, e: EffectKind) -> (Vec<Config>, Ve
     let ds = ctx.ds;
     // The resistance floor stays at its current value while a candidate is tested (except
     // saturation itself): it is slow to search and rarely trades off with the others.
-    let mut params = vec![Param::LnExponent];
+    let mut params = law_params(cur);
     let mut starts = Vec::new();
     let fmax = ds.max_force().max(1e-9);
     let gmax = ctx
@@ -243,7 +243,38 @@ fn candidate_variants(
             .collect();
         let mut p3 = params.clone();
         p3.extend([Param::CreepC(2), Param::CreepLnTau(2)]);
-        return vec![(starts, params), (three, p3)];
+        // Creep that stays with the load (no recovery tail), with two terms or three.
+        let under = |v: &[Config]| -> Vec<Config> {
+            v.iter()
+                .map(|s| Config {
+                    creep_under_load: true,
+                    ..s.clone()
+                })
+                .collect()
+        };
+        let (u2, u3) = (under(&starts), under(&three));
+        return vec![
+            (starts, params.clone()),
+            (three, p3.clone()),
+            (u2, params),
+            (u3, p3),
+        ];
+    }
+    if e == EffectKind::CurvatureSensitivity && ctx.ds.kappa.is_none() {
+        // Without a curvature column: also one sensitivity factor per trial (any loss of each
+        // mounting's sensitivity, whatever the curvature's proxy says), fitted with the nodes.
+        let per_trial = Config {
+            curv_sens: None,
+            curv_linear: false,
+            curv_trials: Some(vec![1.0; ctx.ds.n_trials]),
+            ..cur.clone()
+        };
+        let held: Vec<Param> = params
+            .iter()
+            .copied()
+            .filter(|p| *p != Param::CurvBeta)
+            .collect();
+        return vec![(starts, params), (vec![per_trial], held)];
     }
     if e == EffectKind::Hysteresis {
         // One start per half-width (the additive starts come twice, with mix 0 and 1), each
@@ -322,7 +353,11 @@ pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
             _ => (2, 0),
         },
         EffectKind::CurvatureBaseline => (0, 1),
-        EffectKind::CurvatureSensitivity | EffectKind::Saturation | EffectKind::Crosstalk => (1, 0),
+        EffectKind::CurvatureSensitivity => match &cfg.curv_trials {
+            Some(g) => (g.len().saturating_sub(1), 0),
+            None => (1, 0),
+        },
+        EffectKind::Saturation | EffectKind::Crosstalk => (1, 0),
         EffectKind::ScanSkew => (2, 0),
     };
     ParamCount { global, per_node }
@@ -354,12 +389,18 @@ mod tests {
             }
             assert_eq!(n_params(cfg, EffectKind::ThermalDrift).global, *k);
         }
-        // Creep: two Prony terms, or three (charged two parameters more).
+        // Creep: two Prony terms, or three (charged two parameters more), each also as creep
+        // that stays with the load.
         let creep = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Creep);
-        assert_eq!(creep.len(), 2);
-        for ((starts, params), terms) in creep.iter().zip([2, 3]) {
+        assert_eq!(creep.len(), 4);
+        for ((starts, params), (terms, under)) in
+            creep
+                .iter()
+                .zip([(2, false), (3, false), (2, true), (3, true)])
+        {
             let cfg = &starts[0];
             assert_eq!(cfg.creep.as_ref().map(Vec::len), Some(terms));
+            assert!(starts.iter().all(|c| c.creep_under_load == under));
             assert_eq!(n_params(cfg, EffectKind::Creep).global, 2 * terms);
             assert!(params.contains(&Param::CreepLnTau(terms - 1)));
         }

@@ -120,6 +120,7 @@ mod tests {
             resid,
             sse,
             fits: [Config::base(1.0, 0.0), Config::base(1.0, 0.0)],
+            colour: std::sync::OnceLock::new(),
         }
     }
 

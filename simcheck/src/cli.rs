@@ -8,7 +8,7 @@ use anyhow::Context as _;
 use clap::{Parser, Subcommand};
 use taxel_sim::SensorModel;
 
-use crate::data::Dataset;
+use crate::data::{Dataset, ReadoutGiven};
 use crate::diagnose::{diagnose, Options};
 use crate::refworld::{generate, Case};
 
@@ -113,7 +113,11 @@ fn load_model(path: Option<&Path>) -> anyhow::Result<SensorModel> {
 
 fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<()> {
     let mut start = load_model(a.model.as_deref())?;
-    let mut given = a.model.is_some();
+    let mut given = if a.model.is_some() {
+        ReadoutGiven::Model
+    } else {
+        ReadoutGiven::No
+    };
     if let Some(kind) = &a.readout {
         start.readout.kind = match kind.as_str() {
             "amplifier" => taxel_sim::ReadoutKind::Amplifier,
@@ -123,7 +127,9 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<()> {
                 anyhow::bail!("--readout: expected amplifier, resistance or divider, got {other:?}")
             }
         };
-        given = true;
+        if given == ReadoutGiven::No {
+            given = ReadoutGiven::Kind;
+        }
     }
     let (ds, note) = Dataset::load(&a.recording, a.rows, a.cols, &start.readout, given)?;
     let notes: Vec<String> = note.into_iter().collect();

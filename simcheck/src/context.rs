@@ -32,6 +32,10 @@ pub struct Context<'a> {
     /// continuous loaded span. Creep is seen while a load is held; a slower "creep" could not be
     /// told from a drift, so it is not allowed to stand in for one.
     pub creep_tau_max: f64,
+    /// Widest hysteresis (N): a third of the peak force. A play or a Bouc-Wen saturation that
+    /// only the largest presses reach is a memory of the largest load, not a loop; it would
+    /// stand in for what another effect's form leaves.
+    pub hyst_r_max: f64,
     /// Per node: the total force that moves the node as much as one newton moves the most
     /// loaded node (>= 1), from the nodes' loaded-minus-rest conductance (see `load_scale`).
     /// In-load hysteresis uses it to turn a local half-width into total-force units.
@@ -43,6 +47,8 @@ pub struct Context<'a> {
     /// The observations undone through the floor and crosstalk, for the last few sample sets
     /// and parameters (see `model::Observed`).
     pub(crate) observed: ObservedCache,
+    /// Readings taken out as one-frame spikes (see [`crate::noise::spikes`]).
+    pub spikes: usize,
 }
 
 /// A few [`Observed`]s by what they depend on.
@@ -52,8 +58,10 @@ impl<'a> Context<'a> {
     pub fn new(ds: &'a Dataset) -> Context<'a> {
         let n = ds.n;
         let g_obs: Vec<f64> = ds.y.iter().map(|&y| ds.map.to_g(y)).collect();
-        let dom_obs = ds.y.iter().map(|&y| ds.map.dom(y)).collect();
-        let usable = ds.y.iter().map(|&y| !ds.map.on_rail(y)).collect();
+        let dom_obs: Vec<f64> = ds.y.iter().map(|&y| ds.map.dom(y)).collect();
+        let mut usable: Vec<bool> = ds.y.iter().map(|&y| !ds.map.on_rail(y)).collect();
+        // One-frame spikes are not the sensor's: out before any fit.
+        let spikes = crate::noise::spikes(&dom_obs, n, &mut usable);
         // Rest samples: force below 2 % of the peak.
         let fmax = ds.max_force();
         let rest: Vec<bool> = ds.force.iter().map(|&f| f <= 0.02 * fmax).collect();
@@ -113,9 +121,11 @@ impl<'a> Context<'a> {
             block,
             n_blocks,
             creep_tau_max,
+            hyst_r_max: ds.max_force() / 3.0,
             load_scale,
             force_deadband,
             observed: Mutex::new(Vec::new()),
+            spikes,
         }
     }
 

@@ -7,6 +7,7 @@ use crate::candidates::ParamCount;
 use crate::context::Context;
 use crate::effects::Config;
 use crate::model::{evaluate, Eval};
+use crate::noise::NoiseModel;
 use crate::search::{fit, Param};
 
 /// Acceptance thresholds (documented in docs/simcheck.md).
@@ -14,22 +15,6 @@ pub const MIN_BLOCK_T: f64 = 3.0;
 pub const MIN_REL_GAIN: f64 = 0.01;
 /// Block t statistic an effect must keep to stay in the model in the backward pass.
 pub const MIN_KEEP_T: f64 = 2.0;
-
-/// What the criterion needs to know about a held-out residual.
-#[derive(Debug, Clone, Copy)]
-pub struct ResidStats {
-    pub time_samples: usize,
-    /// Integrated autocorrelation time (samples), averaged over nodes.
-    pub tau_int: f64,
-}
-
-/// [`ResidStats`] of a held-out residual (`len` samples x `n` nodes).
-pub fn resid_stats(resid: &[f64], len: usize, n: usize) -> ResidStats {
-    ResidStats {
-        time_samples: len,
-        tau_int: tau_int(resid, len, n),
-    }
-}
 
 /// Held-out (two-fold) result of a model.
 #[derive(Debug, Clone)]
@@ -46,6 +31,8 @@ pub struct Cv {
     pub rest_block_sse: Vec<f64>,
     /// The configuration fitted on each fold's training half.
     pub fits: [Config; 2],
+    /// The residual's colour, computed when first needed (see [`NoiseModel::colour`]).
+    pub colour: std::sync::OnceLock<NoiseModel>,
 }
 
 impl Cv {
@@ -113,6 +100,7 @@ pub fn cross_validate(ctx: &Context, starts: &[Config], params: &[Param], max_ev
         node_sse,
         rest_block_sse,
         fits: [a, b],
+        colour: std::sync::OnceLock::new(),
     }
 }
 
@@ -186,7 +174,16 @@ pub fn signed_rank_z(d: &[f64]) -> f64 {
     (w_plus - mean) / sd
 }
 
-pub fn compare(before: &Cv, after: &Cv, k: ParamCount, stats: ResidStats) -> Verdict {
+/// How strongly `after` (a richer model) beats `before` on held-out data; `k` is what the richer
+/// model adds, `noise` the noise model and `n` the number of nodes.
+pub fn compare(
+    ctx: &Context,
+    before: &Cv,
+    after: &Cv,
+    k: ParamCount,
+    noise: &NoiseModel,
+) -> Verdict {
+    let n = ctx.ds.n;
     let d: Vec<f64> = before
         .block_sse
         .iter()
@@ -205,12 +202,27 @@ pub fn compare(before: &Cv, after: &Cv, k: ParamCount, stats: ResidStats) -> Ver
     // gains unevenly; the t statistic counts that unevenness as noise, the ranks do not. (It
     // replaced a sign test, which counted many small gains as much as a few large losses.)
     let rank_z = signed_rank_z(&d);
-    // Nodes share the stimulus and its errors: count time samples, not node-samples. (Summing
-    // per-node evidence instead lets any flexible per-node term absorb what another effect's
-    // approximate form leaves behind.) Per-node parameters count once per node with data.
-    let n_eff = (stats.time_samples as f64 / stats.tau_int.max(1.0)).max(2.0);
-    let ratio = (before.sse / after.sse.max(1e-300)).max(1e-300);
+    // The evidence is the fall in held-out SSE measured against the variance the change `d`
+    // sees in what the richer model leaves (its held-out residual's own colour over time and
+    // across nodes, `NoiseModel::colour`) and in the noise at rest, whichever is larger:
+    // `n_eff = SSE_1 / seen` node-samples. White noise independent on every node counts every
+    // node-sample; a leftover that nodes share counts about once per time sample (nodes share
+    // the stimulus and its errors, and summing per-node evidence then lets a flexible per-node
+    // term absorb what another effect's approximate form leaves behind), and a slow one, a
+    // wander or a drift, few. Per-node parameters count once per node with data.
     let n_nodes = after.node_sse.iter().filter(|v| **v > 0.0).count();
+    let d: Vec<f64> = before
+        .resid
+        .iter()
+        .zip(&after.resid)
+        .map(|(a, b)| a - b)
+        .collect();
+    let colour = after
+        .colour
+        .get_or_init(|| NoiseModel::colour(ctx, &after.resid));
+    let seen = noise.seen_by(&d, n).max(colour.seen_by(&d, n)).max(1e-300);
+    let n_eff = (after.sse / seen).max(2.0);
+    let ratio = (before.sse / after.sse.max(1e-300)).max(1e-300);
     let n_params = k.global + k.per_node * n_nodes;
     let ic_gain = n_eff * ratio.ln() - n_params as f64 * n_eff.ln();
     let rel_gain = 1.0 - after.sse / before.sse.max(1e-300);

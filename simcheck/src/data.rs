@@ -166,6 +166,27 @@ impl ReadoutMap {
     }
 }
 
+/// How much of the start model's readout the user fixed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReadoutGiven {
+    /// Nothing (the default model): the kind and direction follow the readings.
+    No,
+    /// The kind only (`--readout`): the direction follows the readings.
+    Kind,
+    /// A model: kept as it is (a mismatch is noted).
+    Model,
+}
+
+impl From<bool> for ReadoutGiven {
+    fn from(given: bool) -> Self {
+        if given {
+            ReadoutGiven::Model
+        } else {
+            ReadoutGiven::No
+        }
+    }
+}
+
 /// Why a recording cannot be diagnosed.
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {
@@ -195,6 +216,93 @@ pub struct Dataset {
     pub map: ReadoutMap,
 }
 
+/// Makes the readout agree with the readings' direction (they rise or fall with force) as far
+/// as the user left it open, and returns a note on what was changed or kept. With nothing
+/// given: falling readings are resistances; rising ones go through the amplifier unless many
+/// lie below its zero-conductance reading (the reference voltage's code), which only a divider
+/// produces. With the kind given: the divider's side or the amplifier's inversion follows the
+/// readings. A given model is kept.
+fn readout_direction(
+    r: &mut Readout,
+    given: ReadoutGiven,
+    rising: bool,
+    top: f64,
+    y: &[f64],
+) -> Option<String> {
+    let dir = if rising { "rise" } else { "fall" };
+    let model_rising = ReadoutMap::from_readout(r).rises();
+    match given {
+        ReadoutGiven::Model => (rising != model_rising).then(|| {
+            format!(
+                "the readings {dir} with force but the model's readout ({:?}) {}; kept as given",
+                r.kind,
+                if model_rising { "rises" } else { "falls" }
+            )
+        }),
+        ReadoutGiven::Kind => match r.kind {
+            ReadoutKind::Divider if r.divider_rises != rising => {
+                r.divider_rises = rising;
+                Some(format!(
+                    "the readings {dir} with force: the divider's crossing is on the {} side",
+                    if rising { "low" } else { "high" }
+                ))
+            }
+            ReadoutKind::Amplifier if r.inverted == rising => {
+                r.inverted = !rising;
+                (!rising).then(|| "the readings fall with force: an inverting front end".into())
+            }
+            ReadoutKind::Resistance if rising => {
+                Some("the readings rise with force, a resistance falls; kept as given".into())
+            }
+            _ => None,
+        },
+        ReadoutGiven::No => {
+            if !rising {
+                if model_rising {
+                    r.kind = ReadoutKind::Resistance;
+                    r.inverted = false;
+                    r.divider_rises = false;
+                    return Some(format!(
+                        "the readings {dir} with force: readout set to Resistance"
+                    ));
+                }
+                return None;
+            }
+            // Rising: the amplifier, unless its zero-conductance code is above many readings.
+            let mut bits = r.adc_bits;
+            while ((1u64 << bits) - 1) as f64 <= top && bits < 24 {
+                bits += 1;
+            }
+            let probe = Readout {
+                kind: ReadoutKind::Amplifier,
+                adc_bits: bits,
+                inverted: false,
+                ..r.clone()
+            };
+            let zero = ReadoutMap::from_readout(&probe).from_g(0.0);
+            let below = y.iter().filter(|&&v| v < zero - 3.0).count();
+            if below * 100 > y.len() {
+                r.kind = ReadoutKind::Divider;
+                r.divider_rises = true;
+                r.inverted = false;
+                return Some(format!(
+                    "the readings rise with force and {:.0} % lie below the amplifier's zero-conductance code ({zero:.0}): readout set to Divider (crossing on the low side)",
+                    100.0 * below as f64 / y.len().max(1) as f64
+                ));
+            }
+            if !model_rising {
+                r.kind = ReadoutKind::Amplifier;
+                r.inverted = false;
+                r.divider_rises = false;
+                return Some(format!(
+                    "the readings {dir} with force: readout set to Amplifier"
+                ));
+            }
+            None
+        }
+    }
+}
+
 impl Dataset {
     pub fn len(&self) -> usize {
         self.t.len()
@@ -211,7 +319,7 @@ impl Dataset {
         rows: Option<usize>,
         cols: Option<usize>,
         readout: &Readout,
-        readout_given: bool,
+        readout_given: impl Into<ReadoutGiven>,
     ) -> Result<(Dataset, Option<String>), DataError> {
         let rec = Recording::read(path)?;
         let g = rec.geometry(rows, cols)?;
@@ -223,8 +331,9 @@ impl Dataset {
         rows: usize,
         cols: usize,
         readout: &Readout,
-        readout_given: bool,
+        readout_given: impl Into<ReadoutGiven>,
     ) -> Result<(Dataset, Option<String>), DataError> {
+        let readout_given = readout_given.into();
         let path = rec.path.display().to_string();
         let bad = |reason: String| DataError::Unusable {
             path: path.clone(),
@@ -303,30 +412,24 @@ impl Dataset {
             }
         };
         let mut r = readout.clone();
-        let mut note = None;
-        let model_rising = ReadoutMap::from_readout(&r).rises();
-        if rising != model_rising {
-            if readout_given {
-                note = Some(format!(
-                    "the readings {} with force but the model's readout ({:?}) {}; kept as given",
-                    if rising { "rise" } else { "fall" },
-                    r.kind,
-                    if model_rising { "rises" } else { "falls" }
-                ));
-            } else {
-                r.kind = if rising {
-                    ReadoutKind::Amplifier
-                } else {
-                    ReadoutKind::Resistance
-                };
-                r.inverted = false;
-                r.divider_rises = false;
-                note = Some(format!(
-                    "the readings {} with force: readout set to {:?}",
-                    if rising { "rise" } else { "fall" },
-                    r.kind
-                ));
-            }
+        let top = rec.nodes.iter().cloned().fold(0.0, f64::max);
+        let mut note = readout_direction(&mut r, readout_given, rising, top, &rec.nodes);
+        // Readings beyond the model's ADC range: the board's converter is wider than the model
+        // says (a 12-bit board read with a 10-bit model would put every reading above 1023 on
+        // the rail and throw it away).
+        if r.kind != ReadoutKind::Resistance && top > r.max_code() {
+            let bits = (1..=24u32)
+                .find(|b| ((1u64 << b) - 1) as f64 >= top)
+                .unwrap_or(24);
+            let was = r.adc_bits;
+            r.adc_bits = bits;
+            let msg = format!(
+                "readings reach {top:.0}, beyond the model's {was}-bit ADC: read as {bits}-bit"
+            );
+            note = Some(match note {
+                Some(n) => format!("{n}; {msg}"),
+                None => msg,
+            });
         }
         let map = ReadoutMap::from_readout(&r);
         Ok((

@@ -11,14 +11,16 @@ use taxel_sim::SensorModel;
 use crate::candidates::{applicable, candidates, n_params};
 use crate::checks::signature_check;
 use crate::context::Context;
-use crate::cv::{compare, cross_validate, resid_stats, Cv, Verdict};
+use crate::cv::{compare, cross_validate, Cv, Verdict};
 use crate::data::Dataset;
 use crate::effects::{Config, EffectKind};
 use crate::forms::max_scan_skew;
+use crate::law::Law;
 use crate::locate::{locate, Findings};
 use crate::model::evaluate;
 use crate::named::{effect_params, evidence};
 pub use crate::named::{hysteresis_weight, in_load_as_sim, NamedEffect};
+use crate::noise::NoiseModel;
 use crate::search::{all_params, base_params, fit_all, refit_params, train_sse};
 use crate::unexplained::find_unexplained;
 pub use crate::unexplained::Unexplained;
@@ -62,6 +64,10 @@ pub struct Diagnosis {
     pub verdict: &'static str,
     pub effects: Vec<NamedEffect>,
     pub unexplained: Vec<Unexplained>,
+    /// Held-out RMSE of the start model's static law (the power law, with the start model's
+    /// floor) before round 0 chose the static law.
+    pub rmse_start_law: f64,
+    /// Held-out RMSE of the base model: the best static law (round 0), before any effect.
     pub rmse_base: f64,
     pub rmse_final: f64,
     pub base: Config,
@@ -76,7 +82,13 @@ pub struct Diagnosis {
     pub base_pred: Vec<f64>,
     pub final_pred: Vec<f64>,
     pub final_theta: Vec<Vec<f64>>,
+    /// The final model with the power law (the simulator's), fitted when the diagnosis chose a
+    /// spline, and its per-node parameters: what SIM.toml is written from.
+    pub sim_cfg: Config,
+    pub sim_theta: Vec<Vec<f64>>,
     pub latent_m: Option<Vec<f64>>,
+    /// The noise model the criterion and the `unexplained` rule used.
+    pub noise: NoiseModel,
     pub seconds: f64,
 }
 pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis {
@@ -85,13 +97,11 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
     let ev_n = opts.max_evals;
     let cfg0 = start_config(&ctx, start);
     let bp = base_params(&cfg0);
-    let base_cv = cross_validate(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
-    let base = fit_all(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
-    let base_eval = evaluate(&ctx, &base, &|_| true);
-    let base_findings = locate(&ctx, &base_cv.resid, &base_eval.pred);
+    let start_cv = cross_validate(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
+    let start_fit = fit_all(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
     let mut skipped = Vec::new();
     for e in EffectKind::ALL {
-        if let Err(why) = applicable(&ctx, &base, e) {
+        if let Err(why) = applicable(&ctx, &start_fit, e) {
             skipped.push((e.name().to_string(), why.to_string()));
         }
     }
@@ -99,23 +109,36 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
         ctx: &ctx,
         ev_n,
         cfg0,
-        cur: base.clone(),
-        cur_cv: base_cv.clone(),
+        cur: start_fit,
+        cur_cv: start_cv.clone(),
         trials: Vec::new(),
         last: None,
+        fixed: BTreeMap::new(),
+        noise: NoiseModel::estimate(&ctx, &start_cv.resid),
+        spline_m: SPLINE_SIZES[0],
     };
+    // Round 0: the static law (saturation against the start model's law, then the flexible
+    // law). What the effects are tested against is the best static law.
+    sel.static_law();
+    let base = sel.cur.clone();
+    let base_cv = sel.cur_cv.clone();
+    let base_eval = evaluate(&ctx, &base, &|_| true);
+    let base_findings = locate(&ctx, &base_cv.resid, &base_eval.pred);
     for round in 1..=opts.max_effects {
         if !sel.round(round) {
             break;
         }
     }
-    let contributions = sel.backward();
+    let mut contributions = sel.backward();
     let Selection {
         mut cur,
         cur_cv,
         trials,
+        fixed,
+        noise,
         ..
     } = sel;
+    contributions.extend(fixed);
     // The search may leave the skew or a creep time constant beyond the bound where it stops
     // acting; report the value that acts.
     cur.scan_skew = cur.scan_skew.map(|v| v.min(max_scan_skew(ds)));
@@ -124,8 +147,10 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
             .iter_mut()
             .for_each(|t| t.1 = t.1.min(ctx.creep_tau_max));
     }
+    cur.hysteresis = cur.hysteresis.map(|r| r.min(ctx.hyst_r_max));
     let final_eval = evaluate(&ctx, &cur, &|_| true);
     let final_findings = locate(&ctx, &cur_cv.resid, &final_eval.pred);
+    let (sim_cfg, sim_theta) = power_summary(&ctx, &cur, &final_eval, ev_n);
     let effects: Vec<NamedEffect> = cur
         .effects()
         .into_iter()
@@ -136,7 +161,7 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
             };
             NamedEffect {
                 name: e.name().to_string(),
-                params: effect_params(ds, &cur, e, &final_eval.theta),
+                params: effect_params(ds, &sim_cfg, e, &sim_theta),
                 evidence: ev,
                 heldout_rmse_before: rb,
                 heldout_rmse_after: ra,
@@ -148,6 +173,7 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
         &base_cv,
         &cur_cv,
         &final_findings,
+        &noise,
         opts.unexplained_ratio,
     );
     let verdict = if !unexplained.is_empty() {
@@ -161,6 +187,7 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
         verdict,
         effects,
         unexplained,
+        rmse_start_law: start_cv.rmse(),
         rmse_base: base_cv.rmse(),
         rmse_final: cur_cv.rmse(),
         base,
@@ -174,12 +201,65 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
         base_pred: base_eval.pred,
         final_pred: final_eval.pred,
         final_theta: final_eval.theta,
+        sim_cfg,
+        sim_theta,
         latent_m: match &final_eval.latent {
             Some(_) => Some(final_eval.m.clone()),
             None => None,
         },
+        noise,
         seconds: t0.elapsed().as_secs_f64(),
     }
+}
+
+/// The smoothness settings of the spline law tried in round 0: basis functions per node.
+pub const SPLINE_SIZES: [usize; 3] = [4, 6, 9];
+
+/// Least share of the held-out SSE the spline law must remove to replace the start model's.
+pub const MIN_LAW_GAIN: f64 = 0.05;
+
+/// What a spline law with `m` basis functions per node adds to the power law: `m - 1` per node
+/// (the power law's gain becomes `m` coefficients), less the exponent it no longer searches.
+fn law_params_added(m: usize) -> crate::candidates::ParamCount {
+    crate::candidates::ParamCount {
+        global: 0,
+        per_node: m - 1,
+    }
+}
+
+/// A spline law's basis functions per node (0 for the power law).
+fn law_of(cfg: &Config) -> usize {
+    match cfg.law {
+        Law::Spline(m) => m,
+        Law::Power => 0,
+    }
+}
+
+/// The final model with the simulator's power law, for SIM.toml: the model itself when its law
+/// is the power law; else the same effects with the power law's exponent (and the floor, when
+/// the model has one) fitted on the whole recording (the effects' parameters kept), and its
+/// per-node parameters.
+fn power_summary(
+    ctx: &Context,
+    cur: &Config,
+    ev: &crate::model::Eval,
+    ev_n: usize,
+) -> (Config, Vec<Vec<f64>>) {
+    if cur.law == Law::Power {
+        return (cur.clone(), ev.theta.clone());
+    }
+    let power = Config {
+        law: Law::Power,
+        ..cur.clone()
+    };
+    let fitted = fit_all(
+        ctx,
+        std::slice::from_ref(&power),
+        &base_params(&power),
+        ev_n,
+    );
+    let theta = evaluate(ctx, &fitted, &|_| true).theta;
+    (fitted, theta)
 }
 
 /// The base model the search starts from: the start model's exponent and resistance floor.
@@ -213,15 +293,144 @@ struct Selection<'a> {
     trials: Vec<Trial>,
     /// The effect that joined last and the held-out result of the model before it joined.
     last: Option<(EffectKind, Cv)>,
+    /// Effects decided in round 0 with the static law (saturation), with their held-out
+    /// contribution; the backward pass does not revisit them.
+    fixed: BTreeMap<EffectKind, (Cv, Verdict)>,
+    /// The noise model, from the start model's held-out residual at rest.
+    noise: NoiseModel,
+    /// The spline size the criterion liked best in round 0 (tried again in later rounds).
+    spline_m: usize,
 }
 
 impl Selection<'_> {
+    /// Round 0, the static law. First the static effects the start model's law family can
+    /// express, each tested alone against it: saturation (when the start model has no floor)
+    /// and crosstalk (with a fixed load map, the row droop is a static function of the force
+    /// too). Then the monotone spline per node ([`crate::law`]) at a few smoothness settings,
+    /// held out against the current model and charged its extra parameters per node; it must
+    /// also remove at least [`MIN_LAW_GAIN`] of the held-out SSE (a law with several parameters
+    /// per node must earn them). When it joins, the static effects named before are held out
+    /// again without it, with the backward pass's rule: one the spline makes unnecessary goes.
+    fn static_law(&mut self) {
+        for e in [EffectKind::Saturation, EffectKind::Crosstalk] {
+            if applicable(self.ctx, &self.cur, e).is_err() {
+                continue;
+            }
+            let tc = Instant::now();
+            let Some((cv, v)) = self.best_variant(e) else {
+                continue;
+            };
+            self.trials.push(Trial {
+                round: 0,
+                effect: e.name().to_string(),
+                verdict: v,
+                seconds: tc.elapsed().as_secs_f64(),
+            });
+            if v.accepted {
+                let before = self.cur_cv.clone();
+                self.join(&cv.fits);
+                let k = n_params(&self.cur, e);
+                let v = compare(self.ctx, &before, &self.cur_cv, k, &self.noise);
+                self.fixed.insert(e, (before, v));
+            }
+        }
+        if self.spline(0, &SPLINE_SIZES) {
+            self.retest_static();
+        }
+    }
+
+    /// The spline law with each of `sizes` basis functions per node against the current law;
+    /// true when the best of them joined (tested in `round`). Remembers the best size.
+    fn spline(&mut self, round: usize, sizes: &[usize]) -> bool {
+        let tc = Instant::now();
+        let ds = self.ctx.ds;
+        let mut best: Option<(Cv, Verdict)> = None;
+        for &m in sizes {
+            let cfg = Config {
+                law: Law::Spline(m),
+                ..self.cur.clone()
+            };
+            let cv = cross_validate(
+                self.ctx,
+                std::slice::from_ref(&cfg),
+                &refit_params(&cfg, ds.kappa.is_some()),
+                self.ev_n,
+            );
+            let mut v = compare(
+                self.ctx,
+                &self.cur_cv,
+                &cv,
+                law_params_added(m),
+                &self.noise,
+            );
+            v.accepted &= v.rel_gain >= MIN_LAW_GAIN;
+            if best.as_ref().is_none_or(|b| v.ic_gain > b.1.ic_gain) {
+                best = Some((cv, v));
+            }
+        }
+        let Some((cv, v)) = best else {
+            return false;
+        };
+        self.spline_m = law_of(&cv.fits[0]);
+        self.trials.push(Trial {
+            round,
+            effect: format!(
+                "static_law (monotone spline, {} per node)",
+                law_of(&cv.fits[0])
+            ),
+            verdict: v,
+            seconds: tc.elapsed().as_secs_f64(),
+        });
+        if v.accepted {
+            self.join(&cv.fits);
+        }
+        v.accepted
+    }
+
+    /// After the spline joined: each static effect named before, held out without it.
+    fn retest_static(&mut self) {
+        let has_kappa = self.ctx.ds.kappa.is_some();
+        let named: Vec<EffectKind> = self.fixed.keys().copied().collect();
+        for e in named {
+            let minus = self.cur.without(e);
+            let cv_minus = cross_validate(
+                self.ctx,
+                std::slice::from_ref(&minus),
+                &refit_params(&minus, has_kappa),
+                self.ev_n,
+            );
+            let k = n_params(&self.cur, e);
+            let v = compare(self.ctx, &cv_minus, &self.cur_cv, k, &self.noise);
+            if v.keep {
+                self.fixed.insert(e, (cv_minus, v));
+            } else {
+                self.cur = fit_all(
+                    self.ctx,
+                    std::slice::from_ref(&minus),
+                    &all_params(&minus, has_kappa),
+                    self.ev_n * 2,
+                );
+                self.cur_cv = cv_minus;
+                self.fixed.remove(&e);
+            }
+        }
+    }
+
     /// One round of forward selection: tests every applicable effect not yet in the model and
     /// adds the accepted one with the largest held-out gain; false when none was accepted.
     fn round(&mut self, round: usize) -> bool {
+        // The static law again once an effect has joined: what the effect took out of the
+        // residual may have hidden the law's shape in round 0 (a drift's slow share, for one).
+        if round >= 2 && self.cur.law == Law::Power && self.spline(round, &[self.spline_m]) {
+            self.retest_static();
+        }
         let mut best: Option<Best> = None;
         for e in EffectKind::ALL {
-            if self.cur.has(e) || applicable(self.ctx, &self.cur, e).is_err() {
+            // Saturation and crosstalk belong to the static law: decided in round 0.
+            if matches!(e, EffectKind::Saturation | EffectKind::Crosstalk)
+                || self.cur.has(e)
+                || applicable(self.ctx, &self.cur, e).is_err()
+            {
                 continue;
             }
             let tc = Instant::now();
@@ -258,7 +467,7 @@ impl Selection<'_> {
             };
             let k = n_params(first, e);
             let cv = cross_validate(self.ctx, &starts, &params, self.ev_n);
-            let mut v = compare(&self.cur_cv, &cv, k, resid_stats(&cv.resid, ds.len(), ds.n));
+            let mut v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
             signature_check(ds, e, &self.cur_cv, &cv, &mut v);
             if tried.as_ref().is_none_or(|t| v.ic_gain > t.1.ic_gain) {
                 tried = Some((cv, v));
@@ -329,7 +538,12 @@ impl Selection<'_> {
         let mut contributions: BTreeMap<EffectKind, (Cv, Verdict)> = BTreeMap::new();
         loop {
             contributions.clear();
-            let effects = self.cur.effects();
+            let effects: Vec<EffectKind> = self
+                .cur
+                .effects()
+                .into_iter()
+                .filter(|e| !self.fixed.contains_key(e))
+                .collect();
             let mut dropped = false;
             for &e in &effects {
                 let minus = self.cur.without(e);
@@ -343,13 +557,14 @@ impl Selection<'_> {
                     ),
                 };
                 let mut v = compare(
+                    ctx,
                     &cv_minus,
                     &self.cur_cv,
                     n_params(&self.cur, e),
-                    resid_stats(&self.cur_cv.resid, ds.len(), ds.n),
+                    &self.noise,
                 );
                 signature_check(ds, e, &cv_minus, &self.cur_cv, &mut v);
-                if !v.keep && effects.len() >= 2 {
+                if !v.keep && effects.len() + self.fixed.len() >= 2 {
                     self.cur = fit_all(
                         ctx,
                         std::slice::from_ref(&minus),
@@ -363,9 +578,60 @@ impl Selection<'_> {
                 }
                 contributions.insert(e, (cv_minus, v));
             }
+            if !dropped && !effects.is_empty() && self.law_redundant() {
+                dropped = true;
+            }
             if !dropped {
                 return contributions;
             }
         }
+    }
+
+    /// With effects in the model, the spline law must still pay for itself against the start
+    /// model's power law (the effects may have taken what it was taken for: the static part of
+    /// a loop the base could not follow before hysteresis joined). When it does not keep its
+    /// place, the power law comes back; true then.
+    fn law_redundant(&mut self) -> bool {
+        let Law::Spline(m) = self.cur.law else {
+            return false;
+        };
+        let ctx = self.ctx;
+        let has_kappa = ctx.ds.kappa.is_some();
+        let minus = Config {
+            law: Law::Power,
+            exponent: self.cfg0.exponent,
+            ..self.cur.clone()
+        };
+        let cv_minus = cross_validate(
+            ctx,
+            std::slice::from_ref(&minus),
+            &refit_params(&minus, has_kappa),
+            self.ev_n,
+        );
+        let v = compare(
+            ctx,
+            &cv_minus,
+            &self.cur_cv,
+            law_params_added(m),
+            &self.noise,
+        );
+        if v.keep && v.rel_gain >= 0.5 * MIN_LAW_GAIN {
+            return false;
+        }
+        self.trials.push(Trial {
+            round: 0,
+            effect: format!("static_law (back to the power law from the spline, {m} per node)"),
+            verdict: v,
+            seconds: 0.0,
+        });
+        self.cur = fit_all(
+            ctx,
+            std::slice::from_ref(&minus),
+            &all_params(&minus, has_kappa),
+            self.ev_n * 2,
+        );
+        self.cur_cv = cv_minus;
+        self.last = None;
+        true
     }
 }

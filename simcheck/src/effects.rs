@@ -1,6 +1,8 @@
 //! The effect library's configuration: which effects a model holds and their global
 //! parameters (the per-node ones are solved inside each evaluation, see [`crate::model`]).
 
+use crate::law::Law;
+
 /// The effects the tool can name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum EffectKind {
@@ -53,6 +55,9 @@ pub enum Thermal {
 /// Global parameters of the forward model; `None` = effect absent.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Config {
+    /// The static law: the power law `a_k L^n` with this exponent, or a monotone spline per
+    /// node (see [`crate::law`]; the exponent is then not used).
+    pub law: Law,
     pub exponent: f64,
     /// Resistance floor (ohm); used when `sat_in_base` or the saturation effect is on.
     pub r_floor_ohm: f64,
@@ -64,6 +69,11 @@ pub struct Config {
     /// non-negative (under a held force the sensor's deformation, and so its conductance, only
     /// grows) and each `tau` is at most `Context::creep_tau_max`.
     pub creep: Option<Vec<(f64, f64)>>,
+    /// Creep that stays with the load (`L = F (1 + sum c lowpass_tau(on))`, `on` = 1 while the
+    /// force is above 5 % of its peak): it grows under a held load and is gone as the load is,
+    /// with no recovery tail, where the Prony form above (linear viscoelastic superposition)
+    /// recovers with the same time constants after unloading.
+    pub creep_under_load: bool,
     /// Hysteresis: half-width `r` (N) of the play operators; the amplitudes are per node.
     pub hysteresis: Option<f64>,
     /// Hysteresis loop shape: the gap is `gap_r + mix gap_4r` (0: sharp corners; larger:
@@ -92,6 +102,9 @@ pub struct Config {
     pub curv_sens: Option<f64>,
     /// Linear form `1 - kappa / v` (or `1 - beta d`) instead of `1 / (1 + kappa / v)`.
     pub curv_linear: bool,
+    /// Curvature sensitivity as one factor per trial (any loss, monotone or not, of each
+    /// mounting's sensitivity), fitted with the nodes; without a curvature column.
+    pub curv_trials: Option<Vec<f64>>,
     pub curv_base: bool,
     /// Row crosstalk: switch + thread resistance (ohm).
     pub crosstalk: Option<f64>,
@@ -105,11 +118,13 @@ pub struct Config {
 impl Config {
     pub fn base(exponent: f64, r_floor_ohm: f64) -> Config {
         Config {
+            law: Law::Power,
             exponent,
             r_floor_ohm,
             sat_in_base: r_floor_ohm > 0.0,
             saturation: false,
             creep: None,
+            creep_under_load: false,
             hysteresis: None,
             hyst_mix: 0.0,
             hyst_share: None,
@@ -118,6 +133,7 @@ impl Config {
             thermal: None,
             curv_sens: None,
             curv_linear: false,
+            curv_trials: None,
             curv_base: false,
             crosstalk: None,
             scan_skew: None,
@@ -128,7 +144,9 @@ impl Config {
     pub fn has(&self, e: EffectKind) -> bool {
         match e {
             EffectKind::CurvatureBaseline => self.curv_base,
-            EffectKind::CurvatureSensitivity => self.curv_sens.is_some(),
+            EffectKind::CurvatureSensitivity => {
+                self.curv_sens.is_some() || self.curv_trials.is_some()
+            }
             EffectKind::Saturation => self.saturation,
             EffectKind::Creep => self.creep.is_some(),
             EffectKind::Hysteresis => self.hysteresis.is_some(),
@@ -142,14 +160,20 @@ impl Config {
         let mut c = self.clone();
         match e {
             EffectKind::CurvatureBaseline => c.curv_base = false,
-            EffectKind::CurvatureSensitivity => c.curv_sens = None,
+            EffectKind::CurvatureSensitivity => {
+                c.curv_sens = None;
+                c.curv_trials = None;
+            }
             EffectKind::Saturation => {
                 c.saturation = false;
                 if !c.sat_in_base {
                     c.r_floor_ohm = 0.0;
                 }
             }
-            EffectKind::Creep => c.creep = None,
+            EffectKind::Creep => {
+                c.creep = None;
+                c.creep_under_load = false;
+            }
             EffectKind::Hysteresis => {
                 c.hysteresis = None;
                 c.hyst_share = None;

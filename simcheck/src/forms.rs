@@ -5,7 +5,8 @@
 use crate::data::Dataset;
 use crate::effects::{Config, MAX_CREEP_TERMS};
 
-/// The load transform: creep on the load `f` (hysteresis enters as its own per-node term, see
+/// The load transform: creep on the load `f` (the Prony form, or creep that stays with the
+/// load, see [`Config::creep_under_load`]; its state is driven by whether `f` is above `on_n`) (hysteresis enters as its own per-node term, see
 /// [`crate::numeric::play_gap`], or in `f` itself); the load, clamped at 0, is written for the
 /// samples where `need` holds, in order (every sample when `None`; the parameter search looks
 /// at every `stride`-th training sample only), and the creep states follow every sample. A low-pass's
@@ -16,6 +17,7 @@ pub fn load_series(
     dt: &[f64],
     cfg: &Config,
     tau_max: f64,
+    on_n: f64,
     need: Option<&[bool]>,
     out: &mut Vec<f64>,
 ) {
@@ -26,14 +28,29 @@ pub fn load_series(
         let mut l = fi.max(0.0);
         if let Some(terms) = &cfg.creep {
             let base = l;
+            // The state follows the load, or, for creep that stays with the load, whether the
+            // load is on (above `on_n`).
+            let input = if cfg.creep_under_load {
+                f64::from(u8::from(base > on_n))
+            } else {
+                base
+            };
+            let mut extra = 0.0;
             for ((st, &(c, tau)), cache) in s.iter_mut().zip(terms).zip(step.iter_mut()) {
                 if i > 0 {
                     if cache.0 != dt[i] {
                         *cache = (dt[i], 1.0 - (-dt[i] / tau.min(tau_max)).exp());
                     }
-                    *st += (base - *st) * cache.1;
+                    *st += (input - *st) * cache.1;
                 }
-                l += c * *st;
+                if cfg.creep_under_load {
+                    extra += c * *st;
+                } else {
+                    l += c * *st;
+                }
+            }
+            if cfg.creep_under_load {
+                l += base * extra;
             }
         }
         if need.is_none_or(|m| m[i]) {

@@ -12,8 +12,9 @@ use crate::context::Context;
 use crate::data::ReadoutMap;
 use crate::effects::{Config, Thermal};
 use crate::forms::{bouc_wen_load, load_series, max_scan_skew, Knee};
+use crate::law::{Basis, Law, RowMap};
 pub use crate::numeric::{centre_by_level, play_gap, solve_spd};
-use crate::numeric::{hat, lowpass, PowTable};
+use crate::numeric::{hat, lowpass, nnls, PowTable};
 
 /// Result of one evaluation.
 pub struct Eval {
@@ -25,6 +26,8 @@ pub struct Eval {
     pub m: Vec<f64>,
     /// The latent thermal values at the knots after fitting (if latent).
     pub latent: Option<Vec<f64>>,
+    /// The per-trial sensitivities after fitting (if the sensitivity is per trial).
+    pub trial_gains: Option<Vec<f64>>,
     /// Training SSE (only when predictions were not requested).
     pub train_sse: f64,
 }
@@ -60,29 +63,41 @@ pub fn evaluate_with(
     } else {
         1
     };
-    let terms = Terms::new(ctx, cfg, &fit_idx, want_pred, step);
+    let mut terms = Terms::new(ctx, cfg, &fit_idx, want_pred, step);
     let (mut m, mut latent) = thermal_factor(ctx, cfg, &dt);
     let obs = Observed::cached(ctx, cfg, &fit_idx);
-    let fit = NodeFit {
-        ctx,
-        terms: &terms,
-        obs: &obs,
-        fit_idx: &fit_idx,
-        r: cfg.floor(),
-    };
+    let mut gains = cfg.curv_trials.clone();
     let mut theta = vec![vec![0.0; terms.lay.dim()]; n];
-    let iterations = if latent.is_some() { 3 } else { 1 };
+    // A latent drift or per-trial sensitivities are fitted with the nodes, alternately.
+    let iterations = if latent.is_some() || gains.is_some() {
+        3
+    } else {
+        1
+    };
     for it in 0..iterations {
         if let Some((knots, values)) = &latent {
             apply_latent(ctx, knots, values, &mut m);
         }
+        if let Some(g) = &gains {
+            terms.sens = ds.trial.iter().map(|&j| g[j]).collect();
+        }
+        let fit = NodeFit {
+            ctx,
+            terms: &terms,
+            obs: &obs,
+            fit_idx: &fit_idx,
+            r: cfg.floor(),
+        };
         theta = crate::parallel::map(n, |k| fit.node(k, &m));
+        if it + 1 == iterations {
+            break;
+        }
         // Latent thermal: refit the common-mode factor on the knots.
         if let Some((knots, values)) = &mut latent {
-            if it + 1 == iterations {
-                break;
-            }
             *values = fit.latent(knots, &theta);
+        }
+        if let Some(g) = &mut gains {
+            *g = fit.trial_gains(&theta, &m, g.len());
         }
     }
     let looked: &[usize] = if want_pred { &[] } else { &fit_idx };
@@ -92,6 +107,7 @@ pub fn evaluate_with(
         theta,
         m,
         latent: latent.map(|l| l.1),
+        trial_gains: gains,
         train_sse,
     }
 }
@@ -116,6 +132,8 @@ struct Loads {
 /// The grid the effects' states run on: every `step`-th sample's time, interval, force and
 /// whether the fit needs its load (all when `None`).
 struct Grid<'a> {
+    /// The force above which creep that stays with the load counts the load as on.
+    on_n: f64,
     t: Vec<f64>,
     dt: Vec<f64>,
     force: std::borrow::Cow<'a, [f64]>,
@@ -135,13 +153,27 @@ impl<'a> Grid<'a> {
             std::borrow::Cow::Owned(ds.force.iter().step_by(step).copied().collect())
         };
         let need = need.map(|m| m.iter().step_by(step).copied().collect());
-        Grid { t, dt, force, need }
+        Grid {
+            on_n: 0.05 * ds.max_force(),
+            t,
+            dt,
+            force,
+            need,
+        }
     }
 
     /// The load series of the load `f` (see [`load_series`]) and its largest value.
     fn series(&self, f: impl Iterator<Item = f64>, cfg: &Config, tau_max: f64) -> Vec<f64> {
         let mut p = Vec::with_capacity(self.t.len());
-        load_series(f, &self.dt, cfg, tau_max, self.need.as_deref(), &mut p);
+        load_series(
+            f,
+            &self.dt,
+            cfg,
+            tau_max,
+            self.on_n,
+            self.need.as_deref(),
+            &mut p,
+        );
         p
     }
 }
@@ -153,7 +185,9 @@ impl Loads {
         let grid = Grid::new(ctx, need, step);
         let tau_max = ctx.creep_tau_max;
         let knee = cfg.hyst_bouc_wen.then(|| Knee::new(cfg.hyst_bw_n));
-        let mut loads: Vec<Vec<f64>> = match (cfg.hysteresis, cfg.hyst_share) {
+        let r_max = ctx.hyst_r_max;
+        let mut loads: Vec<Vec<f64>> = match (cfg.hysteresis.map(|r| r.min(r_max)), cfg.hyst_share)
+        {
             (Some(r), Some(share)) => crate::parallel::map(ctx.load_scale.len(), |k| {
                 let sc = ctx.load_scale[k];
                 if let Some(knee) = &knee {
@@ -175,14 +209,16 @@ impl Loads {
             }),
             _ => vec![grid.series(grid.force.iter().copied(), cfg, tau_max)],
         };
-        // The force law, p = L^n.
-        let l_max = loads
-            .iter()
-            .map(|p| p.iter().fold(0.0f64, |a, &b| a.max(b)))
-            .fold(0.0f64, f64::max);
-        let law = PowTable::new(l_max, cfg.exponent);
-        for p in loads.iter_mut() {
-            p.iter_mut().for_each(|v| *v = law.at(*v));
+        // The power law, p = L^n (a spline reads the load itself).
+        if cfg.law == Law::Power {
+            let l_max = loads
+                .iter()
+                .map(|p| p.iter().fold(0.0f64, |a, &b| a.max(b)))
+                .fold(0.0f64, f64::max);
+            let law = PowTable::new(l_max, cfg.exponent);
+            for p in loads.iter_mut() {
+                p.iter_mut().for_each(|v| *v = law.at(*v));
+            }
         }
         let t = &grid.t;
         let slopes: Vec<Vec<f64>> = if skew != 0.0 {
@@ -219,8 +255,8 @@ impl Loads {
         }
     }
 
-    /// The force-law term `p` of node `k` at sample `i` (a multiple of `step`), the `jj`-th the
-    /// fit looks at.
+    /// The force-law term `p` (the power law) or the load (a spline) of node `k` at sample `i`
+    /// (a multiple of `step`), the `jj`-th the fit looks at.
     fn at(&self, k: usize, i: usize, jj: usize) -> f64 {
         let j = k.min(self.loads.len() - 1);
         let i = if self.compact { jj } else { i / self.step };
@@ -238,11 +274,12 @@ impl Loads {
 }
 
 /// The regressors of the per-node linear fit: the loads, the curvature sensitivity per sample,
-/// the additive hysteresis term and the curvature-baseline regressor, and where each sits in
-/// `theta`.
+/// the additive hysteresis term and the curvature-baseline regressor, the spline's basis (with
+/// a spline law), and where each sits in `theta`.
 struct Terms {
     lay: Layout,
     loads: Loads,
+    basis: Option<Basis>,
     sens: Vec<f64>,
     hyst: Vec<f64>,
     curv_x: Vec<f64>,
@@ -262,33 +299,82 @@ impl Terms {
         let sens = sensitivity(ctx, cfg);
         let curv_x = curvature_regressor(ctx, cfg);
         let hyst = additive_hysteresis(ctx, cfg);
+        let basis = match cfg.law {
+            Law::Power => None,
+            Law::Spline(m) => Some(Basis::new(m, ds.max_force())),
+        };
         let lay = Layout {
             n_int: 1,
             curv_k: cfg.curv_base,
             hyst: !hyst.is_empty(),
+            law: cfg.law.per_node(),
         };
         Terms {
             lay,
             loads,
+            basis,
             sens,
             hyst,
             curv_x,
         }
     }
 
-    /// The per-node regressors at sample `i`, the `j`-th the fit looks at (written into `xrow`,
-    /// `lay.dim()` long).
-    fn row(&self, k: usize, i: usize, j: usize, xrow: &mut [f64]) {
-        let pdim = xrow.len();
-        xrow.iter_mut().for_each(|v| *v = 0.0);
-        xrow[0] = 1.0;
+    /// The number of local values (see [`Terms::local`]).
+    fn vdim(&self) -> usize {
+        self.lay.law_start() + if self.basis.is_some() { 3 } else { 1 }
+    }
+
+    /// Node `k`'s local regressors at sample `i`, the `j`-th the fit looks at (written into
+    /// `v`, [`Terms::vdim`] long: 1, the curvature-baseline and hysteresis regressors, and the
+    /// law's value (power) or the sensitivity and the two values that vary within the load's
+    /// knot segment (spline), see [`crate::law::RowMap`]); returns the segment.
+    fn local(&self, k: usize, i: usize, j: usize, v: &mut [f64]) -> usize {
+        v[0] = 1.0;
         if self.lay.curv_k {
-            xrow[self.lay.n_int] = self.curv_x[i];
+            v[self.lay.n_int] = self.curv_x[i];
         }
         if self.lay.hyst {
-            xrow[pdim - 2] = self.sens[i] * self.hyst[i];
+            v[self.lay.hyst_index()] = self.sens[i] * self.hyst[i];
         }
-        xrow[pdim - 1] = self.sens[i] * self.loads.at(k, i, j);
+        let o = self.lay.law_start();
+        let l = self.loads.at(k, i, j);
+        match &self.basis {
+            None => {
+                v[o] = self.sens[i] * l;
+                0
+            }
+            Some(b) => {
+                let (s, a, c) = b.local(l);
+                v[o] = self.sens[i];
+                v[o + 1] = self.sens[i] * a;
+                v[o + 2] = self.sens[i] * c;
+                s
+            }
+        }
+    }
+
+    /// The prediction `theta . x` from local values `v` in segment `s`.
+    fn z_local(&self, th: &[f64], s: usize, v: &[f64]) -> f64 {
+        let o = self.lay.law_start();
+        let z: f64 = th[..o].iter().zip(&v[..o]).map(|(t, x)| t * x).sum();
+        match &self.basis {
+            None => z + th[o] * v[o],
+            Some(b) => {
+                let c = &th[o..];
+                let below: f64 = c[..s].iter().zip(b.full()).map(|(c, f)| c * f).sum();
+                z + v[o] * below + c[s] * v[o + 1] + c.get(s + 1).map_or(0.0, |cn| cn * v[o + 2])
+            }
+        }
+    }
+
+    /// Node `k`'s static law at sample `i` (the `j`-th the fit looks at), before the
+    /// sensitivity factor.
+    fn law(&self, th: &[f64], k: usize, i: usize, j: usize) -> f64 {
+        let l = self.loads.at(k, i, j);
+        match &self.basis {
+            None => th[self.lay.law_start()] * l,
+            Some(b) => b.value(&th[self.lay.law_start()..], l),
+        }
     }
 
     /// Node `k`'s conductance before the thermal factor at sample `i` (the `j`-th the fit looks
@@ -300,7 +386,18 @@ impl Terms {
             0.0
         };
         let cx = if self.lay.curv_k { self.curv_x[i] } else { 0.0 };
-        zhat(th, &self.lay, cx, hv, self.sens[i] * self.loads.at(k, i, j))
+        let l = self.loads.at(k, i, j);
+        let mut z = th[0];
+        if self.lay.curv_k {
+            z += th[self.lay.n_int] * cx;
+        }
+        if self.lay.hyst {
+            z += th[self.lay.hyst_index()] * hv;
+        }
+        match &self.basis {
+            None => z + th[self.lay.law_start()] * (self.sens[i] * l),
+            Some(b) => z + self.sens[i] * b.value(&th[self.lay.law_start()..], l),
+        }
     }
 }
 
@@ -315,6 +412,9 @@ fn sensitivity(ctx: &Context, cfg: &Config) -> Vec<f64> {
             1.0 / (1.0 + x).max(0.05)
         }
     };
+    if let Some(g) = &cfg.curv_trials {
+        return ds.trial.iter().map(|&j| g[j]).collect();
+    }
     match (cfg.curv_sens, &ds.kappa) {
         (Some(ks), Some(kappa)) => kappa
             .iter()
@@ -392,7 +492,7 @@ fn curvature_regressor(ctx: &Context, cfg: &Config) -> Vec<f64> {
 /// between branches (a loop), never a level-dependent offset the static law should carry.
 fn additive_hysteresis(ctx: &Context, cfg: &Config) -> Vec<f64> {
     let ds = ctx.ds;
-    match cfg.hysteresis {
+    match cfg.hysteresis.map(|r| r.min(ctx.hyst_r_max)) {
         Some(r) if cfg.hyst_share.is_none() => {
             let narrow = play_gap(&ds.force, r);
             let wide = play_gap(&ds.force, 4.0 * r);
@@ -494,35 +594,38 @@ impl NodeFit<'_> {
     /// Node `k`'s linear parameters given the thermal factor `m`. For readouts that are not
     /// linear in conductance (resistance, divider) a few Gauss-Newton passes linearise the
     /// residual domain around the current prediction instead of the observation (whose 1/G^2
-    /// weights would favour the highest-resistance samples).
+    /// weights would favour the highest-resistance samples). The normal equations are summed
+    /// per knot segment over the local regressors and then mapped to the full row (one
+    /// segment for the power law; see [`crate::law::RowMap`]).
     fn node(&self, k: usize, m: &[f64]) -> Vec<f64> {
         let ds = self.ctx.ds;
         let n = ds.n;
-        let pdim = self.terms.lay.dim();
+        let lay = &self.terms.lay;
+        let pdim = lay.dim();
+        let vdim = self.terms.vdim();
+        let segments = self.terms.basis.as_ref().map_or(1, Basis::dim);
         let gn_passes = if matches!(ds.map, ReadoutMap::Amplifier { .. }) {
             0
         } else {
             2
         };
         let mut th = vec![0.0; pdim];
-        let mut xrow = vec![0.0; pdim];
+        let mut v = vec![0.0; vdim];
+        let base = k * self.fit_idx.len();
         for pass in 0..=gn_passes {
-            let mut a = vec![0.0; pdim * pdim];
-            let mut b = vec![0.0; pdim];
-            let base = k * self.fit_idx.len();
+            let mut s_loc = vec![0.0; segments * vdim * vdim];
+            let mut r_loc = vec![0.0; segments * vdim];
             for (j, &i) in self.fit_idx.iter().enumerate() {
-                let idx = i * n + k;
                 let w = self.obs.wgt[base + j];
                 if w == 0.0 {
                     continue;
                 }
                 let mi = m[i];
-                self.terms.row(k, i, j, &mut xrow);
+                let seg = self.terms.local(k, i, j, &mut v);
                 let (z, w) = if pass == 0 {
                     (self.obs.g2[base + j] / mi, w * mi * mi)
                 } else {
-                    let zh: f64 = xrow.iter().zip(th.iter()).map(|(x, t)| x * t).sum();
-                    let zh = zh.max(1e-15);
+                    let zh = self.terms.z_local(&th, seg, &v).max(1e-15);
                     let dom_of = |z: f64| {
                         let g = (mi * z).max(1e-15);
                         ds.map.dom(ds.map.from_g(g / (1.0 + self.r * g)))
@@ -532,29 +635,104 @@ impl NodeFit<'_> {
                     if !d.is_finite() || d == 0.0 {
                         continue;
                     }
-                    (zh + (self.ctx.dom_obs[idx] - f0) / d, d * d)
+                    (zh + (self.ctx.dom_obs[i * n + k] - f0) / d, d * d)
                 };
-                accumulate(&mut a, &mut b, &xrow, w, z);
+                let (sa, rb) = (
+                    &mut s_loc[seg * vdim * vdim..(seg + 1) * vdim * vdim],
+                    &mut r_loc[seg * vdim..(seg + 1) * vdim],
+                );
+                accumulate(sa, rb, &v, w, z);
+            }
+            let mut a = vec![0.0; pdim * pdim];
+            let mut b = vec![0.0; pdim];
+            for seg in 0..segments {
+                let map = RowMap::new(self.terms.basis.as_ref(), seg, lay.law_start() - 1);
+                map.add(
+                    &s_loc[seg * vdim * vdim..(seg + 1) * vdim * vdim],
+                    &r_loc[seg * vdim..(seg + 1) * vdim],
+                    vdim,
+                    &mut a,
+                    &mut b,
+                );
             }
             for u in 0..pdim {
-                for v in u + 1..pdim {
-                    a[u * pdim + v] = a[v * pdim + u];
+                for w in u + 1..pdim {
+                    a[u * pdim + w] = a[w * pdim + u];
                 }
             }
-            th = solve_spd(&a, &b, pdim);
-            if th[0] < 0.0 {
-                // A conductance baseline cannot be negative (a constant force, for one,
-                // cannot separate it from the gain): refit with the baseline at zero.
-                for u in 0..pdim {
-                    a[u * pdim] = 0.0;
-                    a[u] = 0.0;
-                }
-                a[0] = 1.0;
-                b[0] = 0.0;
-                th = solve_spd(&a, &b, pdim);
-            }
+            th = self.solve(&mut a, &mut b);
         }
         th
+    }
+
+    /// The per-node normal equations solved: the power law as before (least squares, and a
+    /// baseline that came out negative refitted at zero); a spline with its coefficients
+    /// non-negative (a monotone law), the same rule for the baseline.
+    fn solve(&self, a: &mut [f64], b: &mut [f64]) -> Vec<f64> {
+        let lay = &self.terms.lay;
+        let pdim = lay.dim();
+        let constrained: Vec<bool> = (0..pdim).map(|u| u >= lay.law_start()).collect();
+        let solve = |a: &[f64], b: &[f64]| {
+            if self.terms.basis.is_some() {
+                nnls(a, b, pdim, &constrained)
+            } else {
+                solve_spd(a, b, pdim)
+            }
+        };
+        let th = solve(a, b);
+        if th[0] >= 0.0 {
+            return th;
+        }
+        // A conductance baseline cannot be negative (a constant force, for one, cannot
+        // separate it from the gain): refit with the baseline at zero.
+        for u in 0..pdim {
+            a[u * pdim] = 0.0;
+            a[u] = 0.0;
+        }
+        a[0] = 1.0;
+        b[0] = 0.0;
+        solve(a, b)
+    }
+
+    /// Each trial's sensitivity factor given the nodes' parameters (the force term's share of
+    /// the conductance, fitted per trial in closed form on the linearisation of the first
+    /// pass), normalised to a mean of 1 over trials.
+    fn trial_gains(&self, theta: &[Vec<f64>], m: &[f64], trials: usize) -> Vec<f64> {
+        let ds = self.ctx.ds;
+        let n = ds.n;
+        let mut num = vec![0.0; trials];
+        let mut den = vec![0.0; trials];
+        for (jj, &i) in self.fit_idx.iter().enumerate() {
+            let j = ds.trial[i];
+            let mi = m[i];
+            for (k, th) in theta.iter().enumerate().take(n) {
+                let idx = k * self.fit_idx.len() + jj;
+                let w = self.obs.wgt[idx] * mi * mi;
+                if w == 0.0 {
+                    continue;
+                }
+                let q = self.terms.law(th, k, i, jj);
+                let rest = self.terms.z(th, k, i, jj) - self.terms.sens[i] * q;
+                num[j] += w * q * (self.obs.g2[idx] / mi - rest);
+                den[j] += w * q * q;
+            }
+        }
+        let mut g: Vec<f64> = num
+            .iter()
+            .zip(&den)
+            .map(|(a, b)| {
+                if *b > 0.0 {
+                    (a / b).clamp(0.05, 20.0)
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        let mean = g.iter().sum::<f64>() / trials.max(1) as f64;
+        if mean > 0.0 {
+            g.iter_mut().for_each(|v| *v /= mean);
+        }
+        g
     }
 
     /// The latent common-mode factor at `knots` given the nodes' parameters, normalised to a
@@ -690,27 +868,28 @@ fn predict(
 
 /// Where each per-node linear parameter sits in `theta`: the intercept, the curvature-baseline
 /// slope (on the curvature, or on the trial's no-load shift), the hysteresis amplitude, and
-/// last the force gain.
+/// last the static law's parameters (the power law's gain, or a spline's coefficients).
 #[derive(Debug, Clone, Copy)]
 pub struct Layout {
     pub n_int: usize,
     pub curv_k: bool,
     pub hyst: bool,
+    /// The static law's parameters per node.
+    pub law: usize,
 }
 
 impl Layout {
     pub fn dim(&self) -> usize {
-        self.n_int + usize::from(self.curv_k) + usize::from(self.hyst) + 1
+        self.law_start() + self.law
     }
-}
 
-fn zhat(th: &[f64], lay: &Layout, cx: f64, hv: f64, sp: f64) -> f64 {
-    let mut z = th[0];
-    if lay.curv_k {
-        z += th[lay.n_int] * cx;
+    /// Index of the additive hysteresis amplitude.
+    pub fn hyst_index(&self) -> usize {
+        self.n_int + usize::from(self.curv_k)
     }
-    if lay.hyst {
-        z += th[th.len() - 2] * hv;
+
+    /// Index of the static law's first parameter.
+    pub fn law_start(&self) -> usize {
+        self.n_int + usize::from(self.curv_k) + usize::from(self.hyst)
     }
-    z + th[th.len() - 1] * sp
 }

@@ -29,6 +29,12 @@ pub fn effect_params(
     let mut p = BTreeMap::new();
     match e {
         EffectKind::Creep => {
+            if cfg.creep.is_some() {
+                p.insert(
+                    "under_load".into(),
+                    f64::from(u8::from(cfg.creep_under_load)),
+                );
+            }
             if let Some(terms) = &cfg.creep {
                 let mut t = terms.clone();
                 t.sort_by(|a, b| a.1.total_cmp(&b.1));
@@ -74,6 +80,13 @@ pub fn effect_params(
             None => {}
         },
         EffectKind::CurvatureSensitivity => {
+            if let Some(g) = &cfg.curv_trials {
+                let lo = g.iter().cloned().fold(f64::INFINITY, f64::min);
+                let hi = g.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+                p.insert("per_trial".into(), 1.0);
+                p.insert("trials".into(), g.len() as f64);
+                p.insert("sensitivity_min_over_max".into(), lo / hi.max(1e-12));
+            }
             if let Some(v) = cfg.curv_sens {
                 let form = if cfg.curv_linear { 1.0 } else { 0.0 };
                 p.insert("linear_form".into(), form);

@@ -112,6 +112,70 @@ pub fn solve_spd(a: &[f64], b: &[f64], p: usize) -> Vec<f64> {
     }
 }
 
+/// Minimises `x' a x / 2 - b' x` (the least squares of normal equations `a x = b`; `a` is
+/// `p x p`, row-major, symmetric) with `x_i >= 0` where `constrained[i]`: the active-set method
+/// of Lawson and Hanson on the normal equations (a monotone law's coefficients must not be
+/// negative). Unconstrained coefficients are free throughout.
+pub fn nnls(a: &[f64], b: &[f64], p: usize, constrained: &[bool]) -> Vec<f64> {
+    let mut passive: Vec<bool> = constrained.iter().map(|c| !c).collect();
+    let solve_on = |passive: &[bool]| -> Vec<f64> {
+        let idx: Vec<usize> = (0..p).filter(|&i| passive[i]).collect();
+        let q = idx.len();
+        let mut sub = vec![0.0; q * q];
+        let mut rhs = vec![0.0; q];
+        for (u, &iu) in idx.iter().enumerate() {
+            rhs[u] = b[iu];
+            for (w, &iw) in idx.iter().enumerate() {
+                sub[u * q + w] = a[iu * p + iw];
+            }
+        }
+        let sol = solve_spd(&sub, &rhs, q);
+        let mut x = vec![0.0; p];
+        for (u, &iu) in idx.iter().enumerate() {
+            x[iu] = sol[u];
+        }
+        x
+    };
+    let mut x = solve_on(&passive);
+    // Start feasible: the unconstrained part alone, every constrained coefficient at 0.
+    let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-300);
+    for _ in 0..3 * p + 3 {
+        let grad: Vec<f64> = (0..p)
+            .map(|i| b[i] - (0..p).map(|j| a[i * p + j] * x[j]).sum::<f64>())
+            .collect();
+        let enter = (0..p)
+            .filter(|&i| constrained[i] && !passive[i] && grad[i] > 1e-10 * scale)
+            .max_by(|&i, &j| grad[i].total_cmp(&grad[j]));
+        let Some(j) = enter else {
+            break;
+        };
+        passive[j] = true;
+        for _ in 0..p + 1 {
+            let z = solve_on(&passive);
+            let bad: Vec<usize> = (0..p)
+                .filter(|&i| constrained[i] && passive[i] && z[i] <= 0.0)
+                .collect();
+            if bad.is_empty() {
+                x = z;
+                break;
+            }
+            let alpha = bad
+                .iter()
+                .map(|&i| x[i] / (x[i] - z[i]).max(1e-300))
+                .fold(1.0f64, f64::min)
+                .clamp(0.0, 1.0);
+            for i in 0..p {
+                x[i] += alpha * (z[i] - x[i]);
+                if constrained[i] && passive[i] && x[i] <= 1e-15 * scale {
+                    x[i] = 0.0;
+                    passive[i] = false;
+                }
+            }
+        }
+    }
+    x
+}
+
 /// `x^n` on `0..=x_max`, tabulated for one evaluation: the force law's power was the largest
 /// single cost of an evaluation (a `powf` per node and sample), and the exponent changes with
 /// every evaluation, so the table is built anew each time (2049 `powf`). Its points are evenly
@@ -181,6 +245,41 @@ mod tests {
             assert_eq!(table.at(0.0), 0.0);
             assert_eq!(table.at(20.0), 20f64.powf(n));
         }
+    }
+
+    #[test]
+    fn non_negative_least_squares_clamps_only_what_it_must() {
+        // Normal equations of fitting y = x0 + x1 t + x2 t^2 to a falling line: x2 >= 0 and
+        // x1 >= 0 cannot both hold, so the best feasible fit puts x1 = 0.
+        let pts: Vec<(f64, f64)> = (0..20)
+            .map(|i| (i as f64 / 19.0, 2.0 - i as f64 / 19.0))
+            .collect();
+        let mut a = vec![0.0; 9];
+        let mut b = vec![0.0; 3];
+        for (t, y) in &pts {
+            let x = [1.0, *t, t * t];
+            for u in 0..3 {
+                b[u] += x[u] * y;
+                for w in 0..3 {
+                    a[u * 3 + w] += x[u] * x[w];
+                }
+            }
+        }
+        let free = nnls(&a, &b, 3, &[false, false, false]);
+        assert!(
+            (free[1] + 1.0).abs() < 1e-6 && free[2].abs() < 1e-6,
+            "{free:?}"
+        );
+        let x = nnls(&a, &b, 3, &[false, true, true]);
+        assert!(x[1] == 0.0 && x[2] == 0.0, "{x:?}");
+        assert!(
+            (x[0] - 1.5).abs() < 1e-6,
+            "the intercept is the mean: {x:?}"
+        );
+        // A feasible unconstrained optimum is returned as it is.
+        let up: Vec<f64> = b.iter().map(|v| -v).collect();
+        let x = nnls(&a, &up, 3, &[true, true, false]);
+        assert!(x.iter().all(|v| v.is_finite()));
     }
 
     #[test]

@@ -3,6 +3,7 @@
 
 use crate::context::Context;
 use crate::effects::{Config, Thermal};
+use crate::law::Law;
 use crate::model::{evaluate, evaluate_with};
 
 /// A global parameter the search moves, in an unconstrained coordinate.
@@ -232,19 +233,32 @@ pub fn fit(
     for (p, v) in params.iter().zip(&x) {
         p.set(&mut c, *v);
     }
-    // A latent thermal factor is re-read from the final evaluation.
-    if let Some(Thermal::Latent { .. }) = &c.thermal {
+    // A latent thermal factor and per-trial sensitivities are re-read from the final
+    // evaluation (they are fitted inside it).
+    if matches!(&c.thermal, Some(Thermal::Latent { .. })) || c.curv_trials.is_some() {
         let ev = evaluate(ctx, &c, train);
         if let (Some(Thermal::Latent { values, .. }), Some(v)) = (&mut c.thermal, ev.latent) {
             *values = v;
+        }
+        if ev.trial_gains.is_some() {
+            c.curv_trials = ev.trial_gains;
         }
     }
     c
 }
 
+/// The static law's searched parameters: the power law's exponent (a spline has none: its
+/// coefficients are solved per node).
+pub fn law_params(cfg: &Config) -> Vec<Param> {
+    match cfg.law {
+        Law::Power => vec![Param::LnExponent],
+        Law::Spline(_) => Vec::new(),
+    }
+}
+
 /// The base parameters searched with every model.
 pub fn base_params(cfg: &Config) -> Vec<Param> {
-    let mut p = vec![Param::LnExponent];
+    let mut p = law_params(cfg);
     if cfg.sat_in_base || cfg.saturation {
         p.push(Param::LnFloor);
     }
@@ -284,7 +298,7 @@ pub fn all_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
     if let Some(Thermal::Recorded { .. }) = cfg.thermal {
         p.extend([Param::ThermAlpha, Param::ThermLnTau]);
     }
-    if cfg.curv_sens.is_some() {
+    if cfg.curv_sens.is_some() && cfg.curv_trials.is_none() {
         p.push(if has_kappa {
             Param::CurvLnK
         } else {

@@ -6,6 +6,7 @@ use serde::Serialize;
 use crate::context::Context;
 use crate::cv::Cv;
 use crate::locate::{node_stats, spans, Findings};
+use crate::noise::NoiseModel;
 
 #[derive(Debug, Clone, Serialize)]
 pub struct Unexplained {
@@ -18,17 +19,27 @@ pub struct Unexplained {
 /// own noise floor and above the other nodes, or the whole array when every node does. Structure
 /// counts as unexplained only where the named effects removed less than three quarters of the
 /// base model's excess over noise there (what is left of a named effect whose true form differs
-/// from the tool's is not "unexplained").
+/// from the tool's is not "unexplained"). Each node's noise is the noise model's whole noise
+/// at rest (white, fast and slow parts; [`NoiseModel::floor`]) or the white floor from its
+/// sample-to-sample differences, whichever is larger: a wander is noise, not structure.
 pub fn find_unexplained(
     ctx: &Context,
     base_cv: &Cv,
     cv: &Cv,
     f: &Findings,
+    noise: &NoiseModel,
     limit: f64,
 ) -> Vec<Unexplained> {
     let ds = ctx.ds;
-    let stats = node_stats(ctx, &cv.resid);
-    let base_stats = node_stats(ctx, &base_cv.resid);
+    let with_model = |mut v: Vec<crate::locate::NodeStat>| {
+        for s in v.iter_mut() {
+            s.noise = s.noise.max(noise.floor(s.node));
+            s.ratio = if s.noise > 0.0 { s.rms / s.noise } else { 0.0 };
+        }
+        v
+    };
+    let stats = with_model(node_stats(ctx, &cv.resid));
+    let base_stats = with_model(node_stats(ctx, &base_cv.resid));
     let excess = |s: &crate::locate::NodeStat| (s.rms * s.rms - s.noise * s.noise).max(0.0);
     let mostly_left = |k: usize| excess(&stats[k]) > 0.25 * excess(&base_stats[k]);
     let mut ratios: Vec<f64> = stats.iter().map(|s| s.ratio).collect();

@@ -79,10 +79,26 @@ fn findings(s: &mut String, ds: &Dataset, d: &Diagnosis, notes: &[String], resim
             u.nodes, u.t_s[0], u.t_s[1], u.description
         );
     }
-    let _ = writeln!(s, "\nBase model: force-law exponent {:.3}, resistance floor {:.1} ohm; final: exponent {:.3}, floor {:.1} ohm. Readout: {:?}. {} samples x {} nodes, {:.1} s, analysed in {:.1} s.\n",
-        d.base.exponent, if d.base.sat_in_base { d.base.r_floor_ohm } else { 0.0 }, d.final_cfg.exponent,
-        if d.final_cfg.sat_in_base || d.final_cfg.saturation { d.final_cfg.r_floor_ohm } else { 0.0 },
+    let law = |c: &crate::effects::Config| match c.law {
+        crate::law::Law::Power => format!("power law, exponent {:.3}", c.exponent),
+        crate::law::Law::Spline(m) => format!("monotone spline, {m} basis functions per node"),
+    };
+    let floor = |c: &crate::effects::Config| {
+        if c.sat_in_base || c.saturation {
+            c.r_floor_ohm
+        } else {
+            0.0
+        }
+    };
+    let _ = writeln!(s, "\nBase model: {}, resistance floor {:.1} ohm (the start model's law held out at {:.4} {unit}); final: {}, floor {:.1} ohm; SIM.toml: exponent {:.3}. Readout: {:?}. {} samples x {} nodes, {:.1} s, analysed in {:.1} s.\n",
+        law(&d.base), floor(&d.base), d.rmse_start_law, law(&d.final_cfg), floor(&d.final_cfg), d.sim_cfg.exponent,
         ds.map.kind(), ds.len(), ds.n, ds.duration(), d.seconds);
+    let nz = &d.noise;
+    let mean = |f: &dyn Fn(&crate::noise::Parts) -> f64| {
+        nz.nodes.iter().map(f).sum::<f64>() / nz.nodes.len().max(1) as f64
+    };
+    let _ = writeln!(s, "Noise at rest ({} samples, mean over nodes): white {:.3}, fast {:.3}, slow wander {:.3} (correlation time {:.1} s, common to all nodes {:.3}) {unit} standard deviation; {} one-frame spikes taken out.\n",
+        nz.rest_samples, mean(&|p| p.white).sqrt(), mean(&|p| p.fast).sqrt(), mean(&|p| p.slow).sqrt(), nz.wander_tau_s, nz.common.slow.sqrt(), nz.spikes_rejected);
     let _ = writeln!(s, "SIM.toml re-simulated by taxel-sim (driven by the recorded force, no noise): RMSE {resim:.4} {unit} over the whole recording.\n");
     for n in notes {
         let _ = writeln!(s, "- note: {n}");

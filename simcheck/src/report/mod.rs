@@ -18,6 +18,7 @@ use taxel_sim::SensorModel;
 use crate::data::Dataset;
 use crate::diagnose::Diagnosis;
 use crate::effects::Config;
+use crate::law::Law;
 pub use simtoml::{extended_model, resimulate};
 
 /// Writes every output into `dir`; returns the list of files.
@@ -108,6 +109,8 @@ fn report_json(
         "unexplained": d.unexplained,
         "rmse_base": d.rmse_base,
         "rmse_final": d.rmse_final,
+        "rmse_start_law": d.rmse_start_law,
+        "noise": d.noise,
         "recording": ds.path,
         "samples": ds.len(),
         "nodes": n,
@@ -115,6 +118,7 @@ fn report_json(
         "residual_unit": unit,
         "base": base_json(&d.base),
         "final": base_json(&d.final_cfg),
+        "sim_law": base_json(&d.sim_cfg),
         "candidates": d.trials,
         "skipped": d.skipped.iter().map(|(e, w)| json!({"effect": e, "why": w})).collect::<Vec<_>>(),
         "findings_base": d.base_findings,
@@ -126,9 +130,20 @@ fn report_json(
     })
 }
 
+/// A model's static law: `exponent` and `r_floor_ohm` as before, and `law` (`power`, or
+/// `monotone_spline` with `spline_basis_per_node`); with a spline the exponent is the start
+/// model's and unused (`sim_law` has the power law written to SIM.toml).
 fn base_json(c: &Config) -> serde_json::Value {
-    json!({
+    let mut j = json!({
         "exponent": c.exponent,
         "r_floor_ohm": if c.sat_in_base || c.saturation { c.r_floor_ohm } else { 0.0 },
-    })
+    });
+    match c.law {
+        Law::Power => j["law"] = json!("power"),
+        Law::Spline(m) => {
+            j["law"] = json!("monotone_spline");
+            j["spline_basis_per_node"] = json!(m);
+        }
+    }
+    j
 }

@@ -16,7 +16,7 @@ pub fn extended_model(
     ds: &Dataset,
     d: &Diagnosis,
 ) -> (SensorModel, Vec<String>) {
-    let cfg = &d.final_cfg;
+    let cfg = &d.sim_cfg;
     let mut m = start.clone();
     let mut notes = Vec::new();
     m.rows = ds.rows;
@@ -24,13 +24,16 @@ pub fn extended_model(
     m.readout.kind = ds.map.kind();
     m.readout.inverted = matches!(ds.map, ReadoutMap::Amplifier { inverted: true, .. });
     m.readout.divider_rises = matches!(ds.map, ReadoutMap::Divider { rises: true, .. });
-    base_law(&mut m, ds, cfg, &d.final_theta);
-    curvature(&mut m, ds, cfg, &d.final_theta, &mut notes);
+    base_law(&mut m, ds, cfg, &d.sim_theta);
+    curvature(&mut m, ds, cfg, &d.sim_theta, &mut notes);
     m.creep = cfg.creep.as_ref().map(|terms| Creep {
         amplitudes: terms.iter().map(|t| t.0.clamp(-0.99, 0.99)).collect(),
         tau_s: terms.iter().map(|t| t.1).collect(),
     });
-    hysteresis(&mut m, ds, cfg, &d.final_theta, &mut notes);
+    if cfg.creep_under_load {
+        notes.push("creep was found in the form that stays with the load (L = F (1 + sum c lowpass(load on)), no recovery tail after unloading); taxel-sim's creep is the Prony form, which recovers after unloading: SIM.toml carries the same amplitudes and time constants in that form".into());
+    }
+    hysteresis(&mut m, ds, cfg, &d.sim_theta, &mut notes);
     thermal(&mut m, ds, cfg, &mut notes);
     m.crosstalk = cfg.crosstalk.map(|rs| Crosstalk {
         rs_ohm: rs,

@@ -1,0 +1,434 @@
+//! The noise model: what the readings do when nothing but noise moves them, estimated on the
+//! no-load spans of the base model's held-out residual, so that neither a slow wander nor a
+//! rare spike passes for missing physics.
+//!
+//! Per node, the residual at rest is white noise plus two first-order autoregressive parts, a
+//! fast one (sample-to-sample correlation of the readout) and a slow wander (a reference or a
+//! contact drifting over seconds to minutes); a common-mode share of the wander moves every
+//! node together (kept at 0: see [`NoiseModel::common`]). The autocovariance `gamma(l) = w delta(l) + f rho_f^l + s rho_s^l` is fitted
+//! from lags 0, 1, 2, one second and two seconds. Rare one-frame spikes are taken out of the
+//! readings before any fit ([`spikes`]).
+//!
+//! The criterion uses it through [`NoiseModel::seen_by`]: the noise variance that a change `d`
+//! of the prediction is measured against, `d' C d / d' d` with `C` the noise covariance. A fast
+//! change (a loop on every ramp) is measured against about the white noise; a slow one (a
+//! drift) against the wander as well, so a wander is not evidence of a drift. The `unexplained`
+//! rule measures each node's residual against its whole noise ([`NoiseModel::floor`]).
+
+use serde::Serialize;
+
+use crate::context::Context;
+
+/// One node's (or the common mode's) noise: variances and per-sample correlations.
+#[derive(Debug, Clone, Copy, Serialize, Default)]
+pub struct Parts {
+    /// White variance.
+    pub white: f64,
+    /// Fast autoregressive part: variance and lag-one correlation.
+    pub fast: f64,
+    pub rho_fast: f64,
+    /// Slow wander: variance and lag-one correlation.
+    pub slow: f64,
+    pub rho_slow: f64,
+}
+
+impl Parts {
+    pub fn total(&self) -> f64 {
+        self.white + self.fast + self.slow
+    }
+}
+
+/// The estimated noise.
+#[derive(Debug, Clone, Serialize)]
+pub struct NoiseModel {
+    pub nodes: Vec<Parts>,
+    /// The wander shared by every node (its variance is part of each node's `slow`). Not
+    /// estimated (0): at rest it cannot be told from a common drift, which is an effect.
+    pub common: Parts,
+    /// Correlation time of the slow wander (s), for the report.
+    pub wander_tau_s: f64,
+    /// How many no-load samples the estimate rests on.
+    pub rest_samples: usize,
+    /// Readings taken out as one-frame spikes before the fit.
+    pub spikes_rejected: usize,
+}
+
+/// Autocovariances at lags `lags` of `x` over the runs of consecutive samples where `keep`
+/// holds (pairs must both be kept), about the mean of the kept samples.
+fn autocov(x: &[f64], keep: &[bool], lags: &[usize]) -> Vec<f64> {
+    let kept: Vec<f64> = x
+        .iter()
+        .zip(keep)
+        .filter(|(_, k)| **k)
+        .map(|(v, _)| *v)
+        .collect();
+    if kept.len() < 10 {
+        return vec![0.0; lags.len()];
+    }
+    let mean = kept.iter().sum::<f64>() / kept.len() as f64;
+    lags.iter()
+        .map(|&l| {
+            let (mut s, mut c) = (0.0, 0usize);
+            for i in 0..x.len().saturating_sub(l) {
+                if keep[i] && keep[i + l] {
+                    s += (x[i] - mean) * (x[i + l] - mean);
+                    c += 1;
+                }
+            }
+            if c > 5 {
+                s / c as f64
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+/// No-load samples far from any load: the force at most 2 % of its peak for the last two
+/// seconds (what a release leaves, a hysteresis remnant or a creep recovery, is not noise).
+fn quiet_rest(ds: &crate::data::Dataset) -> Vec<bool> {
+    let limit = 0.02 * ds.max_force();
+    let mut last_load = f64::NEG_INFINITY;
+    ds.t.iter()
+        .zip(&ds.force)
+        .map(|(&t, &f)| {
+            if f > limit {
+                last_load = t;
+            }
+            f <= limit && t - last_load >= 2.0
+        })
+        .collect()
+}
+
+/// Each node's parts capped at twice the median over nodes: the nodes share one readout, and a
+/// node whose rest readings are far noisier than the others' carries structure (a broken
+/// thread, a remnant), which must stay visible against the others' noise.
+fn capped(mut nodes: Vec<Parts>) -> Vec<Parts> {
+    let med = |f: &dyn Fn(&Parts) -> f64| {
+        let mut v: Vec<f64> = nodes.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    };
+    let (w, fa, sl) = (med(&|p| p.white), med(&|p| p.fast), med(&|p| p.slow));
+    for p in nodes.iter_mut() {
+        p.white = p.white.min(2.0 * w);
+        p.fast = p.fast.min(2.0 * fa);
+        p.slow = p.slow.min(2.0 * sl);
+    }
+    nodes
+}
+
+/// Fits `white + fast rho_f^l + slow rho_s^l` to autocovariances at lags 0, 1, 2, `big` and
+/// `2 big`.
+fn parts(g: &[f64], big: usize) -> Parts {
+    let (g0, g1, g2, gb, g2b) = (g[0], g[1], g[2], g[3], g[4]);
+    if g0 <= 0.0 {
+        return Parts::default();
+    }
+    // Slow part from the long lags, where the fast part has died out.
+    let (slow, rho_slow) = if gb > 0.0 && g2b > 0.0 && g2b < gb {
+        let rb = (g2b / gb).clamp(1e-6, 0.999_999);
+        let s = (gb / rb).min(0.95 * g0);
+        (s, rb.powf(1.0 / big as f64))
+    } else if gb > 0.0 {
+        // Flat over the long lags: a wander slower than the span; treat it as constant there.
+        (gb.min(0.95 * g0), 1.0 - 1.0 / (10.0 * big as f64))
+    } else {
+        (0.0, 0.0)
+    };
+    let f1 = g1 - slow * rho_slow;
+    let f2 = g2 - slow * rho_slow * rho_slow;
+    let (fast, rho_fast) = if f1 > 0.0 && f2 > 0.0 && f2 < f1 {
+        let r = (f2 / f1).clamp(0.0, 0.99);
+        ((f1 / r.max(1e-6)).min((g0 - slow).max(0.0)), r)
+    } else {
+        (0.0, 0.0)
+    };
+    let white = (g0 - slow - fast).max(0.0);
+    Parts {
+        white,
+        fast,
+        rho_fast,
+        slow,
+        rho_slow,
+    }
+}
+
+/// `sum_ij x_i x_j rho^|i-j|` in one pass.
+fn ar_quadratic(x: &[f64], rho: f64) -> f64 {
+    let mut f = 0.0;
+    let mut s = 0.0;
+    for &v in x {
+        f = v + rho * f;
+        s += v * (2.0 * f - v);
+    }
+    s
+}
+
+impl NoiseModel {
+    /// Estimates the noise from the held-out residual `resid` on the context's no-load samples
+    /// (force at most 2 % of the peak).
+    pub fn estimate(ctx: &Context, resid: &[f64]) -> NoiseModel {
+        let ds = ctx.ds;
+        let (len, n) = (ds.len(), ds.n);
+        let big = ((1.0 / ds.dt()).round() as usize).clamp(3, (len / 8).max(3));
+        let lags = [0, 1, 2, big, 2 * big];
+        let rest = quiet_rest(ds);
+        // Each node against the mean of the nodes at the same sample: what moves every node
+        // together at rest (a drift of temperature, a new mounting's baselines, a common
+        // wander) cannot be told apart there and is left to the held-out test; what is left is
+        // each node's own noise (the mean's share of it undone by n / (n - 1)).
+        let mean: Vec<f64> = (0..len)
+            .map(|i| (0..n).map(|k| resid[i * n + k]).sum::<f64>() / n as f64)
+            .collect();
+        let undo = if n > 1 {
+            n as f64 / (n - 1) as f64
+        } else {
+            1.0
+        };
+        let nodes: Vec<Parts> = (0..n)
+            .map(|k| {
+                let x: Vec<f64> = (0..len)
+                    .map(|i| resid[i * n + k] - if n > 1 { mean[i] } else { 0.0 })
+                    .collect();
+                let keep: Vec<bool> = (0..len).map(|i| rest[i] && ctx.usable[i * n + k]).collect();
+                let g: Vec<f64> = autocov(&x, &keep, &lags).iter().map(|v| v * undo).collect();
+                parts(&g, big)
+            })
+            .collect();
+        let nodes = capped(nodes);
+        let common = Parts::default();
+        let rho = nodes.iter().map(|p| p.rho_slow).sum::<f64>() / n.max(1) as f64;
+        NoiseModel {
+            wander_tau_s: if rho > 0.0 && rho < 1.0 {
+                -ds.dt() / rho.ln()
+            } else {
+                0.0
+            },
+            nodes,
+            common,
+            rest_samples: rest.iter().filter(|r| **r).count(),
+            spikes_rejected: ctx.spikes,
+        }
+    }
+
+    /// The noise variance a change `d` of the held-out prediction (sample-major, `n` nodes) is
+    /// measured against: `d' C d / d' d`. Each node's own parts (its parts less the common
+    /// ones) act on its own column of `d`; the common parts on the sum over nodes.
+    pub fn seen_by(&self, d: &[f64], n: usize) -> f64 {
+        let len = d.len() / n.max(1);
+        let dd: f64 = d.iter().map(|v| v * v).sum();
+        if dd <= 0.0 {
+            return self.nodes.iter().map(Parts::total).sum::<f64>() / n.max(1) as f64;
+        }
+        let c = &self.common;
+        let mut q = 0.0;
+        let mut col = vec![0.0; len];
+        for (k, p) in self.nodes.iter().enumerate() {
+            col.iter_mut()
+                .enumerate()
+                .for_each(|(i, x)| *x = d[i * n + k]);
+            let own: f64 = col.iter().map(|v| v * v).sum();
+            q += (p.white - c.white).max(0.0) * own
+                + (p.fast - c.fast).max(0.0) * ar_quadratic(&col, p.rho_fast)
+                + (p.slow - c.slow).max(0.0) * ar_quadratic(&col, p.rho_slow);
+        }
+        if c.total() > 0.0 {
+            let sum: Vec<f64> = (0..len)
+                .map(|i| d[i * n..(i + 1) * n].iter().sum())
+                .collect();
+            let ss: f64 = sum.iter().map(|v| v * v).sum();
+            q += c.white * ss
+                + c.fast * ar_quadratic(&sum, c.rho_fast)
+                + c.slow * ar_quadratic(&sum, c.rho_slow);
+        }
+        q / dd
+    }
+
+    /// The colour of a residual over every usable sample (not only at rest): each node's
+    /// parts, and the part every node shares, from the mean over nodes (whose own parts have
+    /// averaged down by `n`). What a model leaves is noise to the criterion too: a change is
+    /// measured against this as well as against the noise (see `cv::compare`), so a leftover
+    /// that moves every node together, or slowly, does not count as many independent samples.
+    pub fn colour(ctx: &Context, resid: &[f64]) -> NoiseModel {
+        let ds = ctx.ds;
+        let (len, n) = (ds.len(), ds.n);
+        let big = ((1.0 / ds.dt()).round() as usize).clamp(3, (len / 8).max(3));
+        let lags = [0, 1, 2, big, 2 * big];
+        let nodes: Vec<Parts> = (0..n)
+            .map(|k| {
+                let x: Vec<f64> = (0..len).map(|i| resid[i * n + k]).collect();
+                let keep: Vec<bool> = (0..len).map(|i| ctx.usable[i * n + k]).collect();
+                parts(&autocov(&x, &keep, &lags), big)
+            })
+            .collect();
+        let mean: Vec<f64> = (0..len)
+            .map(|i| (0..n).map(|k| resid[i * n + k]).sum::<f64>() / n as f64)
+            .collect();
+        let all = vec![true; len];
+        let m = parts(&autocov(&mean, &all, &lags), big);
+        let avg = |f: &dyn Fn(&Parts) -> f64| nodes.iter().map(f).sum::<f64>() / n.max(1) as f64;
+        let nf = n as f64;
+        // var(mean) = common + own / n; the common part cannot exceed the nodes' own.
+        let share =
+            |mv: f64, own: f64| ((mv - own / nf) * nf / (nf - 1.0).max(1.0)).clamp(0.0, own);
+        let common = if n > 1 {
+            Parts {
+                white: share(m.white, avg(&|p| p.white)),
+                fast: share(m.fast, avg(&|p| p.fast)),
+                rho_fast: m.rho_fast,
+                slow: share(m.slow, avg(&|p| p.slow)),
+                rho_slow: m.rho_slow,
+            }
+        } else {
+            Parts::default()
+        };
+        NoiseModel {
+            nodes,
+            common,
+            wander_tau_s: 0.0,
+            rest_samples: 0,
+            spikes_rejected: 0,
+        }
+    }
+
+    /// As [`NoiseModel::seen_by`] for node `k` of the change alone (its whole wander counted
+    /// as its own).
+    pub fn seen_by_node(&self, d: &[f64], n: usize, k: usize) -> f64 {
+        let Some(p) = self.nodes.get(k) else {
+            return 0.0;
+        };
+        let col: Vec<f64> = d.iter().skip(k).step_by(n.max(1)).copied().collect();
+        let dd: f64 = col.iter().map(|v| v * v).sum();
+        if dd <= 0.0 {
+            return p.total();
+        }
+        (p.white * dd
+            + p.fast * ar_quadratic(&col, p.rho_fast)
+            + p.slow * ar_quadratic(&col, p.rho_slow))
+            / dd
+    }
+
+    /// Node `k`'s whole noise (standard deviation).
+    pub fn floor(&self, k: usize) -> f64 {
+        self.nodes.get(k).map_or(0.0, |p| p.total().sqrt())
+    }
+}
+
+/// One-frame spikes: readings far from both neighbours on the same side, whose neighbours agree
+/// with each other (a ramp's corner moves one neighbour as far as the reading). Far is 8 robust
+/// standard deviations of the node's second difference. Returns `usable` with the spikes
+/// taken out and their count.
+pub fn spikes(y: &[f64], n: usize, usable: &mut [bool]) -> usize {
+    let len = y.len() / n.max(1);
+    if len < 5 {
+        return 0;
+    }
+    let mut count = 0;
+    for k in 0..n {
+        let d2: Vec<f64> = (1..len - 1)
+            .map(|i| y[i * n + k] - 0.5 * (y[(i - 1) * n + k] + y[(i + 1) * n + k]))
+            .collect();
+        let mut a: Vec<f64> = d2.iter().map(|v| v.abs()).collect();
+        a.sort_by(f64::total_cmp);
+        let sd = 1.4826 * a[a.len() / 2];
+        if sd <= 0.0 {
+            continue;
+        }
+        for (j, &v) in d2.iter().enumerate() {
+            let i = j + 1;
+            let across = (y[(i + 1) * n + k] - y[(i - 1) * n + k]).abs();
+            if v.abs() > 8.0 * sd && across < 0.5 * v.abs() && usable[i * n + k] {
+                usable[i * n + k] = false;
+                count += 1;
+            }
+        }
+    }
+    count
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use taxel_sim::rng::Rng;
+
+    #[test]
+    fn white_fast_and_slow_parts_are_told_apart() {
+        // White 1, fast AR(1) 0.5 with rho 0.6, slow AR(1) 2.0 with rho exp(-1/300).
+        let mut rng = Rng::new(3, 1);
+        let len = 200_000;
+        let (rf, rs) = (0.6f64, (-1.0f64 / 300.0).exp());
+        let (mut f, mut s) = (0.0, 0.0);
+        let x: Vec<f64> = (0..len)
+            .map(|_| {
+                f = rf * f + (0.5 * (1.0 - rf * rf)).sqrt() * rng.normal();
+                s = rs * s + (2.0 * (1.0 - rs * rs)).sqrt() * rng.normal();
+                rng.normal() + f + s
+            })
+            .collect();
+        let g = autocov(&x, &vec![true; len], &[0, 1, 2, 100, 200]);
+        let p = parts(&g, 100);
+        assert!((p.white - 1.0).abs() < 0.15, "{p:?}");
+        assert!(
+            (p.fast - 0.5).abs() < 0.15 && (p.rho_fast - 0.6).abs() < 0.1,
+            "{p:?}"
+        );
+        // The wander's correlation time (300 samples) within a quarter.
+        let tau = -1.0 / p.rho_slow.ln();
+        assert!(
+            (p.slow - 2.0).abs() < 0.5 && (tau - 300.0).abs() < 75.0,
+            "{p:?}"
+        );
+    }
+
+    #[test]
+    fn a_slow_change_sees_the_wander_and_a_fast_one_does_not() {
+        let one = NoiseModel {
+            nodes: vec![Parts {
+                white: 1.0,
+                fast: 0.0,
+                rho_fast: 0.0,
+                slow: 4.0,
+                rho_slow: 0.999,
+            }],
+            common: Parts::default(),
+            wander_tau_s: 10.0,
+            rest_samples: 0,
+            spikes_rejected: 0,
+        };
+        let fast: Vec<f64> = (0..5000)
+            .map(|i| if i % 2 == 0 { 1.0 } else { -1.0 })
+            .collect();
+        let slow = vec![1.0; 5000];
+        let (sf, ss) = (one.seen_by(&fast, 1), one.seen_by(&slow, 1));
+        assert!(sf < 1.01, "{sf}");
+        assert!(ss > 100.0, "{ss}");
+    }
+
+    #[test]
+    fn isolated_spikes_are_taken_out_and_ramps_are_not() {
+        let mut y: Vec<f64> = (0..400)
+            .map(|i| {
+                if i < 200 {
+                    100.0
+                } else {
+                    100.0 + (i - 200) as f64 * 5.0
+                }
+            })
+            .map(|v: f64| {
+                v + if (v as usize).is_multiple_of(3) {
+                    0.5
+                } else {
+                    -0.5
+                }
+            })
+            .collect();
+        y[50] += 40.0;
+        y[300] -= 60.0;
+        let mut usable = vec![true; y.len()];
+        let count = spikes(&y, 1, &mut usable);
+        assert_eq!(count, 2);
+        assert!(!usable[50] && !usable[300]);
+        assert!(usable[200] && usable[201]);
+    }
+}
