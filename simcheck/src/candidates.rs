@@ -308,7 +308,34 @@ fn candidate_variants(
             .filter(|p| *p != Param::HystMix)
             .collect();
         p_bw.extend([Param::HystShare, Param::HystLnN]);
-        return vec![(starts, params), (in_load, p_load), (bouc_wen, p_bw)];
+        // Preisach relays in the load path (virgin start): half-widths around the plays'
+        // half-widths, centres low or mid-range, both signs of the share.
+        let fmax = ctx.ds.max_force().max(1e-9);
+        let preisach: Vec<Config> = in_load
+            .iter()
+            .filter(|s| s.hysteresis.is_some_and(|r| r >= 0.02 * fmax))
+            .flat_map(|s| {
+                [0.1, 0.4].map(|mu| Config {
+                    hyst_preisach: true,
+                    hyst_mix: 0.0,
+                    preis_mu: mu * fmax,
+                    preis_sigma: 0.3 * fmax,
+                    ..s.clone()
+                })
+            })
+            .collect();
+        let mut p_pr: Vec<Param> = params
+            .iter()
+            .copied()
+            .filter(|p| *p != Param::HystMix)
+            .collect();
+        p_pr.extend([Param::HystShare, Param::PreisMu, Param::PreisLnSigma]);
+        return vec![
+            (starts, params),
+            (in_load, p_load),
+            (bouc_wen, p_bw),
+            (preisach, p_pr),
+        ];
     }
     if e != EffectKind::ThermalDrift || ctx.ds.temp.is_some() {
         return vec![(starts, params)];
@@ -345,7 +372,9 @@ pub struct ParamCount {
 pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
     let (global, per_node) = match e {
         EffectKind::Creep => (2 * cfg.creep.as_ref().map_or(2, Vec::len), 0),
-        // In the load path: half-width, mix and share; or Bouc-Wen saturation, exponent, share.
+        // In the load path: half-width, mix and share; or Bouc-Wen saturation, exponent, share;
+        // or Preisach half-width, centre, spread and share.
+        EffectKind::Hysteresis if cfg.hyst_preisach => (4, 0),
         EffectKind::Hysteresis if cfg.hyst_share.is_some() => (3, 0),
         EffectKind::Hysteresis => (2, 1),
         EffectKind::ThermalDrift => match &cfg.thermal {
@@ -408,8 +437,14 @@ mod tests {
         // global share (charged three global parameters and none per node), or a Bouc-Wen
         // state in the load path (saturation, share and exponent instead of the plays' mix).
         let hyst = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Hysteresis);
-        assert_eq!(hyst.len(), 3);
+        assert_eq!(hyst.len(), 4);
         let (additive, in_load, bouc_wen) = (&hyst[0], &hyst[1], &hyst[2]);
+        let preisach = &hyst[3];
+        assert!(preisach
+            .0
+            .iter()
+            .all(|c| c.hyst_preisach && c.hyst_share.is_some()));
+        assert!(preisach.1.contains(&Param::PreisMu) && preisach.1.contains(&Param::PreisLnSigma));
         assert!(bouc_wen
             .0
             .iter()
@@ -421,6 +456,13 @@ mod tests {
         assert!(in_load.0.iter().all(|c| c.hyst_share.is_some()));
         assert!(in_load.1.contains(&Param::HystShare) && !additive.1.contains(&Param::HystShare));
         let k = |c: &Config| n_params(c, EffectKind::Hysteresis);
+        assert_eq!(
+            k(&preisach.0[0]),
+            ParamCount {
+                global: 4,
+                per_node: 0
+            }
+        );
         assert_eq!(
             k(&additive.0[0]),
             ParamCount {

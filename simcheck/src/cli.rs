@@ -9,8 +9,8 @@ use clap::{Parser, Subcommand};
 use taxel_sim::SensorModel;
 
 use crate::data::{Dataset, ReadoutGiven};
-use crate::diagnose::{diagnose, Options};
-use crate::refworld::{generate, Case};
+use crate::diagnose::{diagnose_with, Options, Progress};
+use crate::refworld::Case;
 
 #[derive(Parser, Debug)]
 #[command(
@@ -67,9 +67,13 @@ pub struct CasesArgs {
     /// Length of each recording (s).
     #[arg(long, default_value_t = 300.0)]
     pub seconds: f64,
-    /// Only these cases (slugs, comma-separated); default all.
+    /// Only these cases (slugs, comma-separated); default all of each family's.
     #[arg(long)]
     pub only: Option<String>,
+    /// Families of worlds (comma-separated: reference, zoo-log, zoo-sat, zoo-pow; or all);
+    /// default the reference world.
+    #[arg(long, default_value = "reference")]
+    pub family: String,
 }
 
 #[derive(clap::Args, Debug)]
@@ -77,6 +81,9 @@ pub struct WorldArgs {
     /// Case slug (null, creep, hysteresis, thermal_recorded, ...).
     #[arg(long)]
     pub case: String,
+    /// Family of worlds (reference, zoo-log, zoo-sat, zoo-pow).
+    #[arg(long, default_value = "reference")]
+    pub family: String,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     #[arg(long, default_value_t = 300.0)]
@@ -88,7 +95,7 @@ pub struct WorldArgs {
 pub fn main(args: Args) -> ExitCode {
     let r = match args.cmd {
         Cmd::Diagnose(a) => run_diagnose(a),
-        Cmd::Cases(a) => run_cases(a),
+        Cmd::Cases(a) => crate::cases::run_cases(&a),
         Cmd::World(a) => run_world(a),
     };
     match r {
@@ -136,7 +143,8 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<()> {
     for n in &notes {
         eprintln!("taxel-simcheck: {n}");
     }
-    let d = diagnose(&ds, &start, &Options::default());
+    let d = diagnose_with(&ds, &start, &Options::default(), &progress_bar());
+    clear_progress();
     crate::report::write_all(&a.out, &ds, &start, &d, &notes)?;
     if a.json {
         let text = std::fs::read_to_string(a.out.join("report.json"))?;
@@ -146,6 +154,38 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<()> {
         println!("report: {}", a.out.join("report.md").display());
     }
     Ok(())
+}
+
+/// A progress bar on stderr, drawn once the diagnosis has run for two seconds and only when
+/// stderr is a terminal: the stage, a bar of its steps and the time so far.
+fn progress_bar() -> impl Fn(Progress) + Sync {
+    use std::io::IsTerminal as _;
+    let t0 = std::time::Instant::now();
+    let tty = std::io::stderr().is_terminal();
+    move |p: Progress| {
+        let secs = t0.elapsed().as_secs_f64();
+        if !tty || secs < 2.0 {
+            return;
+        }
+        let width = 20;
+        let done = (p.step * width) / p.of.max(1);
+        eprint!(
+            "\r\x1b[2K[{}{}] {} ({}/{}) {secs:.0} s",
+            "#".repeat(done),
+            "-".repeat(width - done),
+            p.stage,
+            p.step + 1,
+            p.of.max(1)
+        );
+    }
+}
+
+/// Clears the progress bar's line (when stderr is a terminal).
+fn clear_progress() {
+    use std::io::IsTerminal as _;
+    if std::io::stderr().is_terminal() {
+        eprint!("\r\x1b[2K");
+    }
 }
 
 pub fn summary(ds: &Dataset, d: &crate::diagnose::Diagnosis) -> String {
@@ -180,123 +220,21 @@ pub fn summary(ds: &Dataset, d: &crate::diagnose::Diagnosis) -> String {
     s
 }
 
-fn parse_case(slug: &str) -> anyhow::Result<Case> {
+pub use crate::cases::{run_case, CaseRow};
+
+pub(crate) fn parse_case(slug: &str) -> anyhow::Result<Case> {
     let known = || Case::ALL.iter().chain(&Case::EXTRA).copied();
+    // (Every judged case of the zoo families is one of these.)
     known().find(|c| c.slug() == slug).ok_or_else(|| {
         let all: Vec<String> = known().map(|c| c.slug()).collect();
         anyhow::anyhow!("unknown case {slug:?}; one of {}", all.join(", "))
     })
 }
 
-/// One row of the proof table.
-pub struct CaseRow {
-    pub case: Case,
-    pub verdict: String,
-    pub named: Vec<String>,
-    pub before: f64,
-    pub after: f64,
-    pub pass: bool,
-    pub seconds: f64,
-}
-
-/// Runs one proof case.
-pub fn run_case(
-    case: Case,
-    seed: u64,
-    seconds: f64,
-    out: Option<&Path>,
-) -> anyhow::Result<CaseRow> {
-    let rec = generate(case, seed, seconds);
-    let mut start = SensorModel::default();
-    start.material.r_floor_ohm = case.start_floor_ohm();
-    let (ds, _) = Dataset::from_recording(rec, 4, 4, &start.readout, true)?;
-    let d = diagnose(&ds, &start, &Options::default());
-    if let Some(dir) = out {
-        crate::report::write_all(&dir.join(case.slug()), &ds, &start, &d, &[])?;
-    }
-    let (tv, te) = case.truth();
-    let mut named: Vec<String> = d.effects.iter().map(|e| e.name.clone()).collect();
-    named.sort();
-    let mut truth: Vec<String> = te.iter().map(|s| s.to_string()).collect();
-    truth.sort();
-    let pass = d.verdict == tv
-        && (named == truth || tv == "unexplained")
-        && (case != Case::BrokenThread || d.unexplained.iter().any(|u| u.nodes == vec![6]));
-    Ok(CaseRow {
-        case,
-        verdict: d.verdict.to_string(),
-        named,
-        before: d.rmse_base,
-        after: d.rmse_final,
-        pass,
-        seconds: d.seconds,
-    })
-}
-
-fn run_cases(a: CasesArgs) -> anyhow::Result<()> {
-    std::fs::create_dir_all(&a.out)
-        .with_context(|| format!("cannot create {}", a.out.display()))?;
-    let cases: Vec<Case> = match &a.only {
-        Some(list) => list
-            .split(',')
-            .map(|s| parse_case(s.trim()))
-            .collect::<anyhow::Result<_>>()?,
-        None => Case::ALL.to_vec(),
-    };
-    let mut md = String::from(
-        "| case | truth | verdict | named effects | held-out RMSE before -> after (counts) | pass |\n|---|---|---|---|---|---|\n",
-    );
-    let mut rows_json = Vec::new();
-    let mut passed = 0;
-    for (i, c) in cases.iter().enumerate() {
-        eprint!("[{}/{}] {} ... ", i + 1, cases.len(), c.name());
-        let row = run_case(*c, a.seed, a.seconds, Some(&a.out))?;
-        eprintln!("{} {:?} ({:.1} s)", row.verdict, row.named, row.seconds);
-        let (tv, te) = c.truth();
-        md.push_str(&format!(
-            "| {} | {} {} | {} | {} | {:.4} -> {:.4} | {} |\n",
-            c.name(),
-            tv,
-            if te.is_empty() {
-                String::new()
-            } else {
-                format!("({})", te.join(", "))
-            },
-            row.verdict,
-            if row.named.is_empty() {
-                "-".to_string()
-            } else {
-                row.named.join(", ")
-            },
-            row.before,
-            row.after,
-            if row.pass { "yes" } else { "**no**" }
-        ));
-        rows_json.push(serde_json::json!({
-            "case": c.slug(), "truth_verdict": tv, "truth_effects": te, "verdict": row.verdict,
-            "named": row.named, "heldout_rmse_before": row.before, "heldout_rmse_after": row.after,
-            "pass": row.pass, "seconds": row.seconds,
-        }));
-        passed += usize::from(row.pass);
-    }
-    md.push_str(&format!(
-        "\n{passed}/{} cases pass (seed {}, {} s each).\n",
-        cases.len(),
-        a.seed,
-        a.seconds
-    ));
-    std::fs::write(a.out.join("cases.md"), &md)?;
-    std::fs::write(
-        a.out.join("cases.json"),
-        serde_json::to_string_pretty(&rows_json)? + "\n",
-    )?;
-    print!("{md}");
-    Ok(())
-}
-
 fn run_world(a: WorldArgs) -> anyhow::Result<()> {
     let case = parse_case(&a.case)?;
-    let rec = generate(case, a.seed, a.seconds);
+    let family = crate::cases::parse_family(&a.family)?;
+    let rec = crate::zoo::generate(family, case, a.seed, a.seconds);
     let mut w = taxel_formats::csv::RecordingWriter::create(
         &a.out,
         rec.n_nodes,

@@ -9,10 +9,10 @@ use crate::data::Dataset;
 use crate::model::{Observed, ObservedKey};
 
 /// Most samples the parameter search looks at per evaluation (5 minutes at 50 Hz).
-pub const SEARCH_SAMPLES: usize = 15_000;
+pub const SEARCH_SAMPLES: usize = 10_000;
 
 /// Most samples the parameter search runs the effects' states through (5 minutes at 100 Hz).
-pub const STATE_SAMPLES: usize = 30_000;
+pub const STATE_SAMPLES: usize = 20_000;
 
 /// Precomputed views of a dataset shared by every evaluation.
 pub struct Context<'a> {
@@ -44,6 +44,11 @@ pub struct Context<'a> {
     /// memoryless hysteresis state sees it: three standard deviations of the force noise,
     /// estimated from the first differences (median absolute difference / 0.954).
     pub force_deadband: f64,
+    /// The force the forward model is driven with: the recorded force, 0 where it lies within
+    /// the load cell's noise of zero (below `force_deadband`). A law that rises steeply from
+    /// zero load (a logarithmic one) would otherwise turn the load cell's noise at rest into
+    /// counts of predicted reading.
+    pub force_model: Vec<f64>,
     /// The observations undone through the floor and crosstalk, for the last few sample sets
     /// and parameters (see `model::Observed`).
     pub(crate) observed: ObservedCache,
@@ -112,6 +117,11 @@ impl<'a> Context<'a> {
         let creep_tau_max = 3.0 * longest_loaded_span(ds);
         let load_scale = load_scale(ds, &g_obs, &rest);
         let force_deadband = force_deadband(&ds.force);
+        let force_model = ds
+            .force
+            .iter()
+            .map(|&f| if f < force_deadband { 0.0 } else { f })
+            .collect();
         Context {
             ds,
             g_obs,
@@ -124,6 +134,7 @@ impl<'a> Context<'a> {
             hyst_r_max: ds.max_force() / 3.0,
             load_scale,
             force_deadband,
+            force_model,
             observed: Mutex::new(Vec::new()),
             spikes,
         }

@@ -6,7 +6,7 @@
 use crate::candidates::ParamCount;
 use crate::context::Context;
 use crate::effects::Config;
-use crate::model::{evaluate, Eval};
+use crate::model::{evaluate_held_out, Eval};
 use crate::noise::NoiseModel;
 use crate::search::{fit, Param};
 
@@ -50,7 +50,7 @@ pub fn cross_validate(ctx: &Context, starts: &[Config], params: &[Param], max_ev
     let fold = |f: usize| -> (Config, Eval) {
         let train = |i: usize| ctx.fold(i) != f;
         let cfg = fit(ctx, starts, params, &train, max_evals);
-        let ev = evaluate(ctx, &cfg, &train);
+        let ev = evaluate_held_out(ctx, &cfg, &train);
         (cfg, ev)
     };
     let (a, b) = crate::parallel::join(|| fold(0), || fold(1));

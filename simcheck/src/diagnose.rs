@@ -21,9 +21,12 @@ use crate::model::evaluate;
 use crate::named::{effect_params, evidence};
 pub use crate::named::{hysteresis_weight, in_load_as_sim, NamedEffect};
 use crate::noise::NoiseModel;
-use crate::search::{all_params, base_params, fit_all, refit_params, train_sse};
+use crate::search::{all_params, base_params, fit_all, refit_params, train_sse, Param};
 use crate::unexplained::find_unexplained;
 pub use crate::unexplained::Unexplained;
+
+/// A variant of a candidate effect: its starting points and searched parameters.
+type Variant = (Vec<Config>, Vec<Param>);
 
 /// The best candidate of a round: effect, its cross-validation and verdict.
 type Best = (EffectKind, Cv, Verdict);
@@ -89,10 +92,40 @@ pub struct Diagnosis {
     pub latent_m: Option<Vec<f64>>,
     /// The noise model the criterion and the `unexplained` rule used.
     pub noise: NoiseModel,
+    /// What the report needs of the context: each node's share of the load (inverted, see
+    /// `Context::load_scale`), each node's responsiveness under the final model, and the
+    /// loading direction per sample.
+    pub load_scale: Vec<f64>,
+    pub responsiveness: Vec<f64>,
+    pub direction: Vec<i8>,
     pub seconds: f64,
 }
+/// Where a diagnosis is, for a progress display: a stage and a step of it.
+#[derive(Debug, Clone, Copy)]
+pub struct Progress<'a> {
+    pub stage: &'a str,
+    pub step: usize,
+    pub of: usize,
+}
+
+/// [`diagnose_with`] without a progress display.
 pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis {
+    diagnose_with(ds, start, opts, &|_| {})
+}
+
+/// Diagnoses `ds` against the start model, telling `progress` where it is.
+pub fn diagnose_with(
+    ds: &Dataset,
+    start: &SensorModel,
+    opts: &Options,
+    progress: &(dyn Fn(Progress) + Sync),
+) -> Diagnosis {
     let t0 = Instant::now();
+    progress(Progress {
+        stage: "base model",
+        step: 0,
+        of: 1,
+    });
     let ctx = Context::new(ds);
     let ev_n = opts.max_evals;
     let cfg0 = start_config(&ctx, start);
@@ -116,6 +149,7 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
         fixed: BTreeMap::new(),
         noise: NoiseModel::estimate(&ctx, &start_cv.resid),
         spline_m: SPLINE_SIZES[0],
+        progress,
     };
     // Round 0: the static law (saturation against the start model's law, then the flexible
     // law). What the effects are tested against is the best static law.
@@ -151,6 +185,7 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
     let final_eval = evaluate(&ctx, &cur, &|_| true);
     let final_findings = locate(&ctx, &cur_cv.resid, &final_eval.pred);
     let (sim_cfg, sim_theta) = power_summary(&ctx, &cur, &final_eval, ev_n);
+    let responsiveness = crate::locate::responsiveness(&ctx, &final_eval.pred);
     let effects: Vec<NamedEffect> = cur
         .effects()
         .into_iter()
@@ -208,6 +243,9 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
             None => None,
         },
         noise,
+        load_scale: ctx.load_scale.clone(),
+        responsiveness,
+        direction: crate::locate::direction(&ctx),
         seconds: t0.elapsed().as_secs_f64(),
     }
 }
@@ -300,6 +338,7 @@ struct Selection<'a> {
     noise: NoiseModel,
     /// The spline size the criterion liked best in round 0 (tried again in later rounds).
     spline_m: usize,
+    progress: &'a (dyn Fn(Progress) + Sync),
 }
 
 impl Selection<'_> {
@@ -312,6 +351,11 @@ impl Selection<'_> {
     /// per node must earn them). When it joins, the static effects named before are held out
     /// again without it, with the backward pass's rule: one the spline makes unnecessary goes.
     fn static_law(&mut self) {
+        (self.progress)(Progress {
+            stage: "round 0: static law",
+            step: 0,
+            of: 1,
+        });
         for e in [EffectKind::Saturation, EffectKind::Crosstalk] {
             if applicable(self.ctx, &self.cur, e).is_err() {
                 continue;
@@ -425,14 +469,22 @@ impl Selection<'_> {
             self.retest_static();
         }
         let mut best: Option<Best> = None;
-        for e in EffectKind::ALL {
-            // Saturation and crosstalk belong to the static law: decided in round 0.
-            if matches!(e, EffectKind::Saturation | EffectKind::Crosstalk)
-                || self.cur.has(e)
-                || applicable(self.ctx, &self.cur, e).is_err()
-            {
-                continue;
-            }
+        // Saturation and crosstalk belong to the static law: decided in round 0.
+        let todo: Vec<EffectKind> = EffectKind::ALL
+            .into_iter()
+            .filter(|&e| {
+                !matches!(e, EffectKind::Saturation | EffectKind::Crosstalk)
+                    && !self.cur.has(e)
+                    && applicable(self.ctx, &self.cur, e).is_ok()
+            })
+            .collect();
+        let stage = format!("round {round}: testing effects");
+        for (step, &e) in todo.iter().enumerate() {
+            (self.progress)(Progress {
+                stage: &stage,
+                step,
+                of: todo.len(),
+            });
             let tc = Instant::now();
             let Some((cv, v)) = self.best_variant(e) else {
                 continue;
@@ -456,12 +508,13 @@ impl Selection<'_> {
         true
     }
 
-    /// Effect `e`'s variants (a latent drift's resolutions, ...) held out against the current
-    /// model: the one the criterion likes best.
+    /// Effect `e`'s variants (a latent drift's resolutions, the hysteresis forms, ...) held out
+    /// against the current model: the accepted one with the best held-out fit, or, when none
+    /// is accepted, the one the criterion likes best.
     fn best_variant(&self, e: EffectKind) -> Option<(Cv, Verdict)> {
         let ds = self.ctx.ds;
         let mut tried: Option<(Cv, Verdict)> = None;
-        for (starts, params) in candidates(self.ctx, &self.cur, e) {
+        for (starts, params) in self.finalists(e) {
             let Some(first) = starts.first() else {
                 continue;
             };
@@ -469,11 +522,51 @@ impl Selection<'_> {
             let cv = cross_validate(self.ctx, &starts, &params, self.ev_n);
             let mut v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
             signature_check(ds, e, &self.cur_cv, &cv, &mut v);
-            if tried.as_ref().is_none_or(|t| v.ic_gain > t.1.ic_gain) {
+            // Among the variants the rule accepts, the best held-out fit; else the one the
+            // criterion likes best (for the report).
+            let better = |t: &(Cv, Verdict)| match (v.accepted, t.1.accepted) {
+                (true, false) => true,
+                (false, true) => false,
+                (true, true) => v.rel_gain > t.1.rel_gain,
+                (false, false) => v.ic_gain > t.1.ic_gain,
+            };
+            if tried.as_ref().is_none_or(better) {
                 tried = Some((cv, v));
             }
         }
         tried
+    }
+
+    /// Effect `e`'s variants worth holding out: all of them when there are two or fewer; else
+    /// the two whose best starting point on the whole recording scores best,
+    /// `T ln(SSE) + 2 k ln(T)` with `T` the time samples over ten (a crude charge for the extra
+    /// terms). The held-out test then decides between them and the criterion
+    /// charges the one it keeps; a form that a quick fit ranks third or worse rarely wins.
+    fn finalists(&self, e: EffectKind) -> Vec<Variant> {
+        let all = candidates(self.ctx, &self.cur, e);
+        if all.len() <= 2 {
+            return all;
+        }
+        let t = (self.ctx.ds.len() as f64 / 10.0).max(10.0);
+        let n = self.ctx.ds.n;
+        let mut scored: Vec<(f64, Variant)> = all
+            .into_iter()
+            .map(|(starts, params)| {
+                let Some(first) = starts.first() else {
+                    return (f64::INFINITY, (starts, params));
+                };
+                let k = n_params(first, e);
+                let sse = starts
+                    .iter()
+                    .map(|c| train_sse(self.ctx, c, &|_| true))
+                    .fold(f64::INFINITY, f64::min)
+                    .max(1e-300);
+                let score = t * sse.ln() + 2.0 * (k.global + k.per_node * n) as f64 * t.ln();
+                (score, (starts, params))
+            })
+            .collect();
+        scored.sort_by(|a, b| a.0.total_cmp(&b.0));
+        scored.into_iter().take(2).map(|(_, v)| v).collect()
     }
 
     /// The accepted candidate joins: all parameters are refitted on the whole recording, from
@@ -545,7 +638,12 @@ impl Selection<'_> {
                 .filter(|e| !self.fixed.contains_key(e))
                 .collect();
             let mut dropped = false;
-            for &e in &effects {
+            for (step, &e) in effects.iter().enumerate() {
+                (self.progress)(Progress {
+                    stage: "backward pass",
+                    step,
+                    of: effects.len(),
+                });
                 let minus = self.cur.without(e);
                 let cv_minus = match &self.last {
                     Some((last, cv)) if *last == e => cv.clone(),

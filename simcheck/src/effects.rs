@@ -96,6 +96,12 @@ pub struct Config {
     /// The Bouc-Wen state's exponent `n` (1: the classic exponential approach to saturation;
     /// larger: a sharper knee): `dz = du - (|du| z + du |z|) |z|^(n-1) / (2 r^n)`.
     pub hyst_bw_n: f64,
+    /// In-load hysteresis as a Preisach model instead (see [`crate::preisach`]): relays on the
+    /// node's own load, half-widths around `hysteresis` (N), centres around `preis_mu` (N)
+    /// with sd `preis_sigma` (N); the share is `hyst_share`.
+    pub hyst_preisach: bool,
+    pub preis_mu: f64,
+    pub preis_sigma: f64,
     pub thermal: Option<Thermal>,
     /// Curvature sensitivity: `kappa_s` (1/m) with a curvature column, else `beta` (per unit
     /// log-baseline shift of the trial).
@@ -130,6 +136,9 @@ impl Config {
             hyst_share: None,
             hyst_bouc_wen: false,
             hyst_bw_n: 1.0,
+            hyst_preisach: false,
+            preis_mu: 0.0,
+            preis_sigma: 1.0,
             thermal: None,
             curv_sens: None,
             curv_linear: false,
@@ -179,6 +188,7 @@ impl Config {
                 c.hyst_share = None;
                 c.hyst_bouc_wen = false;
                 c.hyst_bw_n = 1.0;
+                c.hyst_preisach = false;
             }
             EffectKind::ThermalDrift => c.thermal = None,
             EffectKind::Crosstalk => c.crosstalk = None,

@@ -42,6 +42,8 @@ pub struct Basis {
     full: Vec<f64>,
     /// Each hat's left half area (`Phi_j` at its own knot).
     left: Vec<f64>,
+    /// `1 / (2 (k_(j+1) - k_j))` per segment.
+    inv_2d: Vec<f64>,
     /// `1 / L_max`.
     inv_scale: f64,
 }
@@ -72,10 +74,20 @@ impl Basis {
                     }
             })
             .collect();
+        let inv_2d = (0..m)
+            .map(|j| {
+                if j + 1 < m {
+                    0.5 / (knots[j + 1] - knots[j])
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         Basis {
             knots,
             full,
             left,
+            inv_2d,
             inv_scale: 1.0 / l_max.max(1e-12),
         }
     }
@@ -104,8 +116,7 @@ impl Basis {
         if s + 1 == m {
             return (s, self.left[s] + u, 0.0);
         }
-        let d = self.knots[s + 1] - self.knots[s];
-        let right = u * u / (2.0 * d);
+        let right = u * u * self.inv_2d[s];
         (s, self.left[s] + u - right, right)
     }
 

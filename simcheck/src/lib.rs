@@ -16,6 +16,7 @@
 //! says), `report` (report.md, report.json, SIM.toml, figures), `refworld` and `cli`.
 
 pub mod candidates;
+pub mod cases;
 pub mod checks;
 pub mod cli;
 pub mod context;
@@ -31,9 +32,11 @@ pub mod named;
 pub mod noise;
 pub mod numeric;
 pub mod parallel;
+pub mod preisach;
 pub mod refworld;
 pub mod report;
 pub mod search;
 #[cfg(test)]
 mod testdata;
 pub mod unexplained;
+pub mod zoo;

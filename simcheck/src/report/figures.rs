@@ -5,7 +5,6 @@ use std::path::Path;
 
 use taxel_plot::{Chart, Mark, Series};
 
-use crate::context::Context;
 use crate::data::Dataset;
 use crate::diagnose::Diagnosis;
 use crate::named::NamedEffect;
@@ -19,7 +18,7 @@ pub fn figures(
     resim_pred: &[f64],
 ) -> anyhow::Result<Vec<String>> {
     let n = ds.n;
-    let resp = crate::locate::responsiveness(&Context::new(ds), &d.final_pred);
+    let resp = &d.responsiveness;
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_by(|&a, &b| resp[b].total_cmp(&resp[a]));
     let top = order[0];
@@ -33,11 +32,11 @@ pub fn figures(
     figures.extend(both(dir, "residual_time", &residual_time(ds, d))?);
     // Per effect: residual against its locating variable.
     let all: Vec<usize> = (0..n).collect();
-    let dir_sign = crate::locate::direction(&Context::new(ds));
+    let dir_sign = &d.direction;
     let mut dtv = vec![ds.dt()];
     dtv.extend(ds.t.windows(2).map(|p| (p[1] - p[0]).max(1e-9)));
     for e in &d.effects {
-        let (xlabel, x) = locating_variable(ds, e, &dir_sign, &dtv);
+        let (xlabel, x) = locating_variable(ds, e, dir_sign, &dtv);
         let nodes: &[usize] = if e.name.starts_with("thermal") || e.name == "curvature_baseline" {
             &all
         } else {

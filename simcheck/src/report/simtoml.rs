@@ -24,7 +24,7 @@ pub fn extended_model(
     m.readout.kind = ds.map.kind();
     m.readout.inverted = matches!(ds.map, ReadoutMap::Amplifier { inverted: true, .. });
     m.readout.divider_rises = matches!(ds.map, ReadoutMap::Divider { rises: true, .. });
-    base_law(&mut m, ds, cfg, &d.sim_theta);
+    base_law(&mut m, ds, cfg, &d.sim_theta, &d.load_scale);
     curvature(&mut m, ds, cfg, &d.sim_theta, &mut notes);
     m.creep = cfg.creep.as_ref().map(|terms| Creep {
         amplitudes: terms.iter().map(|t| t.0.clamp(-0.99, 0.99)).collect(),
@@ -51,7 +51,13 @@ pub fn extended_model(
 
 /// The force law and the per-node factors (`nodes.g0/gain`, and the load shares when
 /// hysteresis acts in the load path).
-fn base_law(m: &mut SensorModel, ds: &Dataset, cfg: &Config, theta: &[Vec<f64>]) {
+fn base_law(
+    m: &mut SensorModel,
+    ds: &Dataset,
+    cfg: &Config,
+    theta: &[Vec<f64>],
+    load_scale: &[f64],
+) {
     m.material.exponent = cfg.exponent;
     m.material.r_floor_ohm = if cfg.sat_in_base || cfg.saturation {
         cfg.r_floor_ohm
@@ -91,7 +97,7 @@ fn base_law(m: &mut SensorModel, ds: &Dataset, cfg: &Config, theta: &[Vec<f64>])
     let load_scale = cfg
         .hyst_share
         .and(cfg.hysteresis)
-        .map(|_| crate::context::Context::new(ds).load_scale);
+        .map(|_| load_scale.to_vec());
     if let Some(sc) = &load_scale {
         for (ak, s) in a.iter_mut().zip(sc) {
             *ak *= s.powf(cfg.exponent);
@@ -194,7 +200,9 @@ fn hysteresis(
             ..Hysteresis::default()
         },
     });
-    if cfg.hyst_bouc_wen {
+    if cfg.hyst_preisach {
+        notes.push(format!("hysteresis: the tool fits Preisach relays in the load path (median half-width {:.3} N, centres {:.3} +- {:.3} N of the most loaded node's load, virgin start); taxel-sim has no Preisach form: SIM.toml gets play operators at the median half-width and four times it with the fitted share", cfg.hysteresis.unwrap_or(0.0), cfg.preis_mu, cfg.preis_sigma));
+    } else if cfg.hyst_bouc_wen {
         notes.push(format!("hysteresis: the tool fits a Bouc-Wen state in the load path, F + share z per node, z saturating at r = {r:.3} N of the most loaded node's load with exponent n = {n:.2}, driven by the node's own load (nodes.load_share, estimated from its signal); its input is the recorded force through a play of half-width {deadband:.3} N (three standard deviations of the load cell's noise), since a state without return-point memory would ratchet on that noise. SIM.toml gets the same form (bouc_wen_saturation_n, bouc_wen_exponent, input_deadband_n, weight = share)", r = cfg.hysteresis.unwrap_or(0.0), n = cfg.hyst_bw_n, deadband = crate::context::force_deadband(&ds.force)));
     } else if cfg.hyst_share.is_some() {
         notes.push(format!("hysteresis: the tool fits the load path F + share (gap_r + mix gap_4r) per node, with each node's half-widths scaled to its share of the load (nodes.load_share, estimated from its signal); SIM.toml gets the simulator's equal-weight form: half-widths r and 4r (in newtons of the most loaded node's load) repeated in the ratio closest to mix = {:.2}, and weight = share x (number of operators) / (number at r)", cfg.hyst_mix));

@@ -1,0 +1,397 @@
+//! The zoo of reference worlds: families of sensors whose functional forms differ from the
+//! tool's own and from the reference world's, built on taxel-sim's zoo presets (static law,
+//! curvature forms, readout and ADC width, white noise, wander and spikes: `taxel_sim::presets`,
+//! docs/sim.md) with effect forms of each family's own. The reference world (`crate::refworld`)
+//! stays one family. Every family runs the judged cases ([`Case::JUDGED`]).
+//!
+//! | family | static law | readout | noise | creep | hysteresis | thermal |
+//! |---|---|---|---|---|---|---|
+//! | `zoo-log` | logarithmic | 12-bit divider, falls | white 2, per-node wander, spikes | log-time under load, no recovery | Bouc-Wen n = 1, beta = 2 gamma | linear, +0.25 %/K, one lag |
+//! | `zoo-sat` | soft saturation, per-node shape | 10-bit amplifier | white 1.4, common wander | three Prony terms, 2-200 s | Preisach relays | quadratic in T, two lags |
+//! | `zoo-pow` | power, per-node exponent | 10-bit inverting amplifier | white 0.5, per-node wander | power of the time under load | five plays, virgin start | exponential, on gain only |
+//!
+//! Curvature (the unlabelled case: five mountings, a trial column, no curvature column) uses
+//! the preset's sensitivity and baseline forms; the load map is fixed per family.
+
+use std::path::PathBuf;
+
+use taxel_formats::csv::Recording;
+use taxel_sim::forms::{baseline_factor, force_term, sensitivity};
+use taxel_sim::noise::NoiseLayers;
+use taxel_sim::rng::Rng;
+use taxel_sim::SensorModel;
+
+use crate::data::ReadoutMap;
+use crate::refworld::{force_at, schedule, Case};
+
+/// A family of worlds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Family {
+    /// The reference world (`crate::refworld`).
+    Reference,
+    ZooLog,
+    ZooSat,
+    ZooPow,
+}
+
+impl Family {
+    pub const ALL: [Family; 4] = [
+        Family::Reference,
+        Family::ZooLog,
+        Family::ZooSat,
+        Family::ZooPow,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Family::Reference => "reference",
+            Family::ZooLog => "zoo-log",
+            Family::ZooSat => "zoo-sat",
+            Family::ZooPow => "zoo-pow",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Family> {
+        Family::ALL.into_iter().find(|f| f.name() == s)
+    }
+
+    /// The cases this family runs by default.
+    pub fn cases(self) -> Vec<Case> {
+        match self {
+            Family::Reference => Case::ALL.to_vec(),
+            _ => Case::JUDGED.to_vec(),
+        }
+    }
+
+    /// The taxel-sim preset behind a zoo family.
+    pub fn preset(self) -> Option<SensorModel> {
+        match self {
+            Family::Reference => None,
+            _ => taxel_sim::presets::preset(self.name()),
+        }
+    }
+
+    /// The readout kind a user of this family's board would name (`--readout`): the
+    /// direction and ADC width are left to the tool.
+    pub fn readout_kind(self) -> taxel_sim::ReadoutKind {
+        self.preset()
+            .map_or(taxel_sim::ReadoutKind::Amplifier, |m| m.readout.kind)
+    }
+}
+
+const ROWS: usize = 4;
+const COLS: usize = 4;
+const N: usize = ROWS * COLS;
+const RATE_HZ: f64 = 100.0;
+
+/// Each family's fixed load map (shares of the total force), normalised in `generate`.
+fn load_map(f: Family) -> [f64; N] {
+    match f {
+        Family::ZooLog => [
+            0.03, 0.08, 0.10, 0.04, 0.06, 0.18, 0.20, 0.05, 0.03, 0.07, 0.06, 0.02, 0.01, 0.03,
+            0.03, 0.01,
+        ],
+        Family::ZooSat => [
+            0.01, 0.02, 0.02, 0.01, 0.04, 0.12, 0.16, 0.03, 0.06, 0.20, 0.15, 0.04, 0.02, 0.05,
+            0.05, 0.02,
+        ],
+        _ => [
+            0.05, 0.10, 0.08, 0.02, 0.08, 0.15, 0.14, 0.04, 0.03, 0.08, 0.09, 0.03, 0.01, 0.04,
+            0.04, 0.02,
+        ],
+    }
+}
+
+/// One node's dynamic state.
+#[derive(Clone, Default)]
+struct NodeState {
+    creep: [f64; 3],
+    on_since: Option<f64>,
+    bw: f64,
+    f_prev: f64,
+    plays: [f64; 5],
+    relays: Vec<bool>,
+}
+
+/// The family's creep on local load `f` at time `t` (`on` = the total force is on).
+fn creep(fam: Family, st: &mut NodeState, f: f64, t: f64, dt: f64, on: bool) -> f64 {
+    if !on {
+        st.on_since = None;
+    } else if st.on_since.is_none() {
+        st.on_since = Some(t);
+    }
+    let t_on = st.on_since.map_or(0.0, |s| t - s);
+    match fam {
+        // Log-time creep that stays with the load: 2.5 % per decade from 0.2 s on.
+        Family::ZooLog => f * (1.0 + 0.025 * (1.0 + t_on / 0.2).log10()),
+        // Linear viscoelastic creep, three Prony terms (recovers after unloading).
+        Family::ZooSat => {
+            let mut extra = 0.0;
+            for (s, (c, tau)) in
+                st.creep
+                    .iter_mut()
+                    .zip([(0.015, 2.0), (0.02, 20.0), (0.03, 200.0)])
+            {
+                *s += (f - *s) * (1.0 - (-dt / tau).exp());
+                extra += c * *s;
+            }
+            f + extra
+        }
+        // A power of the time under load.
+        _ => f * (1.0 + 0.02 * t_on.powf(0.3)),
+    }
+}
+
+/// The family's hysteresis on local load `f` (`scale`: the node's largest local load).
+fn hysteresis(fam: Family, st: &mut NodeState, f: f64, scale: f64, relays: &Relays) -> f64 {
+    match fam {
+        // Bouc-Wen, n = 1, beta = 2 gamma (asymmetric), saturating at 8 % of the node's range.
+        Family::ZooLog => {
+            let zs = 0.08 * scale;
+            let df = f - st.f_prev;
+            st.f_prev = f;
+            let z = st.bw;
+            // dz = df - (beta |df| z + gamma df |z|), beta = 2 gamma, saturating at
+            // 1 / (beta + gamma) = zs.
+            st.bw = (z + df - (2.0 * df.abs() * z + df * z.abs()) / (3.0 * zs)).clamp(-zs, zs);
+            f + 0.5 * st.bw
+        }
+        // Preisach relays centred at a fifth of the node's range.
+        Family::ZooSat => f + 0.06 * scale * relays.step(&mut st.relays, f / scale),
+        // Five play operators started at rest (virgin), weights falling with the half-width.
+        _ => {
+            let mut out = 0.0;
+            for (j, z) in st.plays.iter_mut().enumerate() {
+                let r = scale * 0.015 * 2f64.powi(j as i32);
+                *z = z.clamp(f - r, f + r);
+                out += (*z - f) / (1 + j) as f64;
+            }
+            f + 0.35 * out
+        }
+    }
+}
+
+/// Preisach relays on a normalised load: centres Gaussian around 0.2, half-widths log-normal
+/// around 0.05.
+struct Relays {
+    alpha: Vec<f64>,
+    beta: Vec<f64>,
+    weight: Vec<f64>,
+}
+
+impl Relays {
+    fn new() -> Relays {
+        let (mut alpha, mut beta, mut weight) = (Vec::new(), Vec::new(), Vec::new());
+        for i in 0..12 {
+            let h = 0.01 * 1.4f64.powi(i);
+            for j in 0..16 {
+                let c = -0.1 + 1.0 * j as f64 / 15.0;
+                let w = (-0.5 * ((c - 0.2) / 0.2).powi(2)).exp()
+                    * (-0.5 * ((h / 0.05).ln() / 0.7).powi(2)).exp();
+                alpha.push(c + h);
+                beta.push(c - h);
+                weight.push(w);
+            }
+        }
+        let total: f64 = weight.iter().sum();
+        weight.iter_mut().for_each(|w| *w /= total);
+        Relays {
+            alpha,
+            beta,
+            weight,
+        }
+    }
+
+    /// Moves the relays to load `u` (all down at first); the output in -1..=1.
+    fn step(&self, state: &mut Vec<bool>, u: f64) -> f64 {
+        if state.is_empty() {
+            *state = vec![false; self.weight.len()];
+        }
+        let mut out = 0.0;
+        for (j, up) in state.iter_mut().enumerate() {
+            if u >= self.alpha[j] {
+                *up = true;
+            } else if u <= self.beta[j] {
+                *up = false;
+            }
+            out += if *up { self.weight[j] } else { -self.weight[j] };
+        }
+        out
+    }
+}
+
+/// The family's thermal factors on the baseline and on the force term, from the ambient
+/// temperature's lagged states.
+fn thermal(fam: Family, lag: &mut [f64; 2], amb: f64, dt: f64) -> (f64, f64) {
+    match fam {
+        Family::ZooLog => {
+            lag[0] += (amb - lag[0]) * (1.0 - (-dt / 40.0f64).exp());
+            let m = 1.0 + 0.0025 * (lag[0] - 25.0);
+            (m, m)
+        }
+        Family::ZooSat => {
+            lag[0] += (amb - lag[0]) * (1.0 - (-dt / 30.0f64).exp());
+            lag[1] += (lag[0] - lag[1]) * (1.0 - (-dt / 90.0f64).exp());
+            let d = lag[1] - 25.0;
+            let m = 1.0 - 0.003 * d + 0.0002 * d * d;
+            (m, m)
+        }
+        _ => {
+            lag[0] += (amb - lag[0]) * (1.0 - (-dt / 120.0f64).exp());
+            (1.0, (-0.005 * (lag[0] - 25.0)).exp())
+        }
+    }
+}
+
+/// Generates the recording of `case` in zoo family `fam` (about `duration_s` long) with
+/// `seed`. The reference family is `crate::refworld::generate`.
+pub fn generate(fam: Family, case: Case, seed: u64, duration_s: f64) -> Recording {
+    let Some(model) = fam.preset() else {
+        return crate::refworld::generate(case, seed, duration_s);
+    };
+    let mut rng = Rng::new(seed, 91 + fam as u64);
+    let sched = schedule(&mut rng, duration_s, false);
+    let raw = load_map(fam);
+    let total: f64 = raw.iter().sum();
+    let w: Vec<f64> = raw.iter().map(|v| v / total).collect();
+    let fmax_sched = sched.iter().map(|p| p.4).fold(0.0, f64::max);
+    let m = &model.material;
+    let g0: Vec<f64> = (0..N)
+        .map(|_| m.g0_us * 1e-6 * (0.1 * rng.normal()).exp())
+        .collect();
+    let gain: Vec<f64> = (0..N).map(|_| (0.08 * rng.normal()).exp()).collect();
+    let shape: Vec<f64> = (0..N)
+        .map(|_| (model.spread.node_exponent_log_sd * rng.normal()).exp())
+        .collect();
+    let c = &model.curvature;
+    let across: Vec<f64> = (0..N)
+        .map(|k| {
+            let u = ((k % COLS) as f64 + 0.5) / COLS as f64 * 2.0 - 1.0;
+            c.baseline_g1_m + c.pattern_quad_m * (u * u - 0.3125) + c.pattern_lin_m * u
+        })
+        .collect();
+    let broken: Vec<bool> = sched.iter().map(|_| rng.uniform() < 0.35).collect();
+    let map = ReadoutMap::from_readout(&model.readout);
+    let max_code = model.readout.max_code();
+    let mut layers = NoiseLayers::new(&model.noise, N, seed, 7, 8);
+    let relays = Relays::new();
+    let dt = 1.0 / RATE_HZ;
+    let len = (duration_s * RATE_HZ) as usize;
+    let curv_case = case == Case::CurvatureUnlabelled;
+    let kappas = [0.0, 60.0, 20.0, 80.0, 40.0];
+    let thermal_on = matches!(case, Case::ThermalRecorded | Case::CreepThermal);
+    let creep_on = matches!(case, Case::Creep | Case::CreepThermal);
+    let temp_of = |t: f64| -> f64 {
+        match case {
+            Case::Distractor => 24.0 + 3.0 * (2.0 * std::f64::consts::PI * t / 170.0).sin(),
+            _ => {
+                25.0 + 6.0 * (t / duration_s) + 3.0 * (2.0 * std::f64::consts::PI * t / 140.0).sin()
+            }
+        }
+    };
+    let mut lag = [temp_of(0.0); 2];
+    let mut nodes = vec![NodeState::default(); N];
+    let mut rec = Recording {
+        path: PathBuf::from(format!("{}-{}-seed{seed}.csv", fam.name(), case.slug())),
+        n_nodes: N,
+        ..Recording::default()
+    };
+    let mut cols: [Vec<f64>; 3] = Default::default();
+    let mut trial_col = Vec::with_capacity(len);
+    for i in 0..len {
+        let t = i as f64 * dt;
+        let trial = if curv_case { (i * 5 / len).min(4) } else { 0 };
+        let kappa = if curv_case { kappas[trial] } else { 0.0 };
+        let amb = temp_of(t);
+        let (th_base, th_gain) = if thermal_on {
+            thermal(fam, &mut lag, amb, dt)
+        } else {
+            (1.0, 1.0)
+        };
+        let f_total = force_at(&sched, t);
+        let on = f_total > 0.05 * fmax_sched;
+        let press = sched
+            .iter()
+            .position(|p| t >= p.0 && t < p.0 + p.1 + p.2 + p.3);
+        let extra = layers.next(dt).map(<[f64]>::to_vec);
+        for k in 0..N {
+            let mut f = f_total * w[k];
+            if case == Case::Hysteresis {
+                f = hysteresis(fam, &mut nodes[k], f, fmax_sched * w[k], &relays);
+            }
+            if creep_on {
+                f = creep(fam, &mut nodes[k], f, t, dt, on);
+            }
+            let (amp, term) = force_term(m, shape[k], f.max(0.0));
+            let base = g0[k] * baseline_factor(c, kappa, across[k]);
+            let mut g =
+                base * th_base + gain[k] * amp * 1e-6 * term * sensitivity(c, kappa) * th_gain;
+            if case == Case::BrokenThread && k == 6 {
+                if let Some(p) = press {
+                    let (t0, rise, hold, _, _) = sched[p];
+                    if broken[p] && t > t0 + rise * 0.5 && t < t0 + rise + 0.8 * hold {
+                        g = g0[k] * 0.3;
+                    }
+                }
+            }
+            g /= 1.0 + g * m.r_floor_ohm;
+            let mut y = map.from_g(g) + model.readout.noise_counts * rng.normal();
+            if let Some(e) = &extra {
+                y += e[k];
+            }
+            rec.nodes.push(y.round().clamp(0.0, max_code));
+        }
+        rec.t_s.push(t);
+        cols[0].push((f_total + 0.02 * rng.normal()).max(0.0));
+        cols[1].push(amb + 0.05 * rng.normal());
+        cols[2].push(kappa);
+        trial_col.push(trial as i64);
+    }
+    let [force, temp, _] = cols;
+    rec.force_n = Some(force);
+    if matches!(
+        case,
+        Case::ThermalRecorded | Case::CreepThermal | Case::Distractor
+    ) {
+        rec.temp_c = Some(temp);
+    }
+    if curv_case {
+        rec.trial = Some(trial_col);
+    }
+    rec
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_family_reads_in_range_and_moves_with_force() {
+        for fam in [Family::ZooLog, Family::ZooSat, Family::ZooPow] {
+            let rec = generate(fam, Case::Null, 3, 60.0);
+            let model = fam.preset().expect("preset");
+            let top = model.readout.max_code();
+            assert!(rec.nodes.iter().all(|v| *v >= 0.0 && *v <= top));
+            // The most loaded node (6 or 9) moves by far more than the noise under load.
+            let f = rec.force_n.as_ref().expect("force");
+            let k = if fam == Family::ZooSat { 9 } else { 6 };
+            let (mut lo, mut hi) = (Vec::new(), Vec::new());
+            for (i, fi) in f.iter().enumerate() {
+                let y = rec.nodes[i * N + k];
+                if *fi < 0.1 {
+                    lo.push(y);
+                } else if *fi > 5.0 {
+                    hi.push(y);
+                }
+            }
+            let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+            assert!(
+                (mean(&hi) - mean(&lo)).abs() > 20.0 * model.readout.noise_counts,
+                "{}: {} vs {}",
+                fam.name(),
+                mean(&lo),
+                mean(&hi)
+            );
+        }
+    }
+}
