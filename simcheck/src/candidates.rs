@@ -337,7 +337,18 @@ fn candidate_variants(
             (preisach, p_pr),
         ];
     }
-    if e != EffectKind::ThermalDrift || ctx.ds.temp.is_some() {
+    if e == EffectKind::ThermalDrift && ctx.ds.temp.is_some() {
+        // With a temperature column: on the whole conductance, or on the force term only.
+        let gain: Vec<Config> = starts
+            .iter()
+            .map(|s| Config {
+                thermal_gain_only: true,
+                ..s.clone()
+            })
+            .collect();
+        return vec![(starts, params.clone()), (gain, params)];
+    }
+    if e != EffectKind::ThermalDrift {
         return vec![(starts, params)];
     }
     latent_resolutions(ctx.ds)

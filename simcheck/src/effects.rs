@@ -103,6 +103,9 @@ pub struct Config {
     pub preis_mu: f64,
     pub preis_sigma: f64,
     pub thermal: Option<Thermal>,
+    /// Recorded thermal drift acting on the force term only (the sensitivity), not on the
+    /// unloaded conductance.
+    pub thermal_gain_only: bool,
     /// Curvature sensitivity: `kappa_s` (1/m) with a curvature column, else `beta` (per unit
     /// log-baseline shift of the trial).
     pub curv_sens: Option<f64>,
@@ -140,6 +143,7 @@ impl Config {
             preis_mu: 0.0,
             preis_sigma: 1.0,
             thermal: None,
+            thermal_gain_only: false,
             curv_sens: None,
             curv_linear: false,
             curv_trials: None,
@@ -190,7 +194,10 @@ impl Config {
                 c.hyst_bw_n = 1.0;
                 c.hyst_preisach = false;
             }
-            EffectKind::ThermalDrift => c.thermal = None,
+            EffectKind::ThermalDrift => {
+                c.thermal = None;
+                c.thermal_gain_only = false;
+            }
             EffectKind::Crosstalk => c.crosstalk = None,
             EffectKind::ScanSkew => c.scan_skew = None,
         }

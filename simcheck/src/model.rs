@@ -83,6 +83,13 @@ fn evaluate_inner(
     };
     let mut terms = Terms::new(ctx, cfg, &fit_idx, want_pred, step);
     let (mut m, mut latent) = thermal_factor(ctx, cfg, &dt);
+    if cfg.thermal_gain_only && latent.is_none() {
+        // The drift scales the force term only: it joins the sensitivity.
+        for (s, mi) in terms.sens.iter_mut().zip(m.iter_mut()) {
+            *s *= *mi;
+            *mi = 1.0;
+        }
+    }
     let obs = Observed::cached(ctx, cfg, &fit_idx);
     let mut gains = cfg.curv_trials.clone();
     let mut theta = vec![vec![0.0; terms.lay.dim()]; n];

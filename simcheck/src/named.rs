@@ -72,6 +72,10 @@ pub fn effect_params(
         }
         EffectKind::ThermalDrift => match &cfg.thermal {
             Some(Thermal::Recorded { alpha_per_k, tau_s }) => {
+                p.insert(
+                    "gain_only".into(),
+                    f64::from(u8::from(cfg.thermal_gain_only)),
+                );
                 p.insert("alpha_per_k".into(), *alpha_per_k);
                 p.insert("tau_s".into(), *tau_s);
             }

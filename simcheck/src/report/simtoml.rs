@@ -30,6 +30,9 @@ pub fn extended_model(
         amplitudes: terms.iter().map(|t| t.0.clamp(-0.99, 0.99)).collect(),
         tau_s: terms.iter().map(|t| t.1).collect(),
     });
+    if cfg.thermal_gain_only {
+        notes.push("thermal_drift was found on the force term only (the unloaded conductance does not follow the temperature); taxel-sim's thermal drift scales the whole conductance: SIM.toml carries alpha and tau in that form".into());
+    }
     if cfg.creep_under_load {
         notes.push("creep was found in the form that stays with the load (L = F (1 + sum c lowpass(load on)), no recovery tail after unloading); taxel-sim's creep is the Prony form, which recovers after unloading: SIM.toml carries the same amplitudes and time constants in that form".into());
     }

@@ -1,0 +1,41 @@
+//! A few cases of the zoo of worlds (simcheck/src/zoo.rs; the full table per family is
+//! `taxel-simcheck cases --family all`, reported in docs/simcheck-results.md): worlds whose static
+//! law, noise, readout and effect forms differ from the tool's, diagnosed as a user of that
+//! board would (the default model, only the readout kind named). Seed 1 was a development seed.
+
+use taxel_simcheck::cases::run_case_in;
+use taxel_simcheck::refworld::Case;
+use taxel_simcheck::zoo::Family;
+
+fn check(family: Family, case: Case) {
+    let row = run_case_in(family, case, 1, 300.0, None).expect("diagnose runs");
+    assert!(
+        row.pass,
+        "{} {}: verdict {} named {:?}",
+        family.name(),
+        case.name(),
+        row.verdict,
+        row.named
+    );
+}
+
+/// Logarithmic law on a 12-bit divider that falls with force, log-time creep that leaves
+/// with the load (no recovery tail), per-node wander and spikes.
+#[test]
+fn log_time_creep_under_load_is_found_on_a_falling_divider() {
+    check(Family::ZooLog, Case::Creep);
+}
+
+/// Power law with an exponent of its own on every node, an inverting amplifier and per-node
+/// wander: the spline law absorbs the per-node shapes, and nothing is named.
+#[test]
+fn per_node_exponents_and_a_wander_are_not_named_as_effects() {
+    check(Family::ZooPow, Case::Null);
+}
+
+/// Soft saturation with per-node shapes, linear curvature loss, five mountings without a
+/// curvature column.
+#[test]
+fn unlabelled_curvature_is_found_under_a_saturating_law() {
+    check(Family::ZooSat, Case::CurvatureUnlabelled);
+}
