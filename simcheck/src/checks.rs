@@ -17,15 +17,76 @@ pub fn signature_check(ds: &Dataset, e: EffectKind, before: &Cv, after: &Cv, v: 
         v.accepted = false;
         v.keep = false;
     }
-    // Hysteresis must be rate-independent (a loop that grows with the loading rate is a lag).
+    // Hysteresis must be rate-independent (a loop that grows with the loading rate is a lag),
+    // and a loop: what it changes must follow the loading direction.
     if e == EffectKind::Hysteresis {
         let [slow, fast] = ramp_betas(ds, before, after);
         v.ramp_betas = Some([slow, fast]);
         let ratio = fast / slow;
-        if !(slow > 0.0 && fast > 0.0 && (RATE_RATIO[0]..=RATE_RATIO[1]).contains(&ratio)) {
+        let share = loop_share(ds, before, after);
+        v.loop_share = Some(share);
+        let is_loop = share >= MIN_LOOP_SHARE;
+        let rate_independent =
+            slow > 0.0 && fast > 0.0 && (RATE_RATIO[0]..=RATE_RATIO[1]).contains(&ratio);
+        if !(rate_independent && is_loop) {
             v.accepted = false;
             v.keep = false;
         }
+    }
+}
+
+/// Least share of a hysteresis candidate's change that must follow the loading direction.
+pub const MIN_LOOP_SHARE: f64 = 0.5;
+
+/// How much of the change `d` an added effect makes to the held-out prediction is a loop: on
+/// moving samples (faster than 5 % of the peak force per second) binned by force (8 bins up to the peak), the mean change on loading and on
+/// unloading; the loop part is half their difference, the static part their mean, each
+/// averaged over bins by magnitude and weighted by the bin's samples. Returns
+/// `loop / (loop + static)`: 1 for a change that only follows the direction (a hysteresis
+/// loop), 0 for one that only follows the level (a static law's share a flexible hysteresis
+/// form can take: relays of tiny width are a staircase in the load).
+pub fn loop_share(ds: &Dataset, before: &Cv, after: &Cv) -> f64 {
+    const BINS: usize = 8;
+    let (len, n) = (ds.len(), ds.n);
+    let fmax = ds.max_force().max(1e-12);
+    let bin = |f: f64| ((f.max(0.0) / fmax * BINS as f64) as usize).min(BINS - 1);
+    // Per bin and direction: sum of d over nodes and samples, and count.
+    let mut acc = [[(0.0f64, 0usize); 2]; BINS];
+    for i in 0..len {
+        let (a, b) = (i.saturating_sub(2), (i + 2).min(len - 1));
+        let span = ds.t[b] - ds.t[a];
+        let rate = if span > 0.0 {
+            (ds.force[b] - ds.force[a]) / span
+        } else {
+            0.0
+        };
+        // Moving: faster than 5 % of the peak force per second (as `ramp_betas`).
+        if rate.abs() <= 0.05 * fmax {
+            continue;
+        }
+        let dir = usize::from(rate < 0.0);
+        let cell = &mut acc[bin(ds.force[i])][dir];
+        for k in 0..n {
+            let idx = i * n + k;
+            cell.0 += after.resid[idx] - before.resid[idx];
+            cell.1 += 1;
+        }
+    }
+    let (mut lp, mut st) = (0.0, 0.0);
+    for cells in &acc {
+        let [(sl, cl), (su, cu)] = *cells;
+        if cl == 0 || cu == 0 {
+            continue;
+        }
+        let (ml, mu) = (sl / cl as f64, su / cu as f64);
+        let w = (cl + cu) as f64;
+        lp += w * 0.5 * (ml - mu).abs();
+        st += w * 0.5 * (ml + mu).abs();
+    }
+    if lp + st > 0.0 {
+        lp / (lp + st)
+    } else {
+        0.0
     }
 }
 
@@ -132,6 +193,19 @@ mod tests {
                 (ds.force[b] - ds.force[a]) / (ds.t[b] - ds.t[a])
             })
             .collect()
+    }
+
+    #[test]
+    fn a_loop_follows_the_direction_and_a_staircase_does_not() {
+        let ds = presses();
+        let dfdt = slope(&ds);
+        let zero = cv(vec![0.0; ds.len()]);
+        let looped: Vec<f64> = dfdt.iter().map(|d| 0.5 * d.signum()).collect();
+        assert!(loop_share(&ds, &zero, &cv(looped)) > 0.95);
+        // A change that only follows the force level (a static law's share).
+        let fmax = ds.max_force();
+        let stair: Vec<f64> = ds.force.iter().map(|f| (4.0 * f / fmax).floor()).collect();
+        assert!(loop_share(&ds, &zero, &cv(stair)) < 0.2);
     }
 
     #[test]

@@ -132,6 +132,9 @@ pub struct Verdict {
     /// Hysteresis only: the size of its contribution relative to the residual on slow and on
     /// fast ramps (see `diagnose::ramp_betas`).
     pub ramp_betas: Option<[f64; 2]>,
+    /// Hysteresis only: the share of its change that follows the loading direction (see
+    /// `checks::loop_share`).
+    pub loop_share: Option<f64>,
 }
 
 /// Block t statistic of the SSE reduction from `a` to `b` per block.
@@ -254,6 +257,7 @@ pub fn compare(
             && (block_t >= MIN_KEEP_T || rank_z >= MIN_KEEP_T)
             && ic_gain > 0.0,
         ramp_betas: None,
+        loop_share: None,
     }
 }
 

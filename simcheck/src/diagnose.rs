@@ -182,6 +182,12 @@ pub fn diagnose_with(
             .for_each(|t| t.1 = t.1.min(ctx.creep_tau_max));
     }
     cur.hysteresis = cur.hysteresis.map(|r| r.min(ctx.hyst_r_max));
+    if cur.hyst_preisach {
+        let (h0, mu, sigma) = crate::model::preisach_acting(&ctx, &cur);
+        cur.hysteresis = Some(h0);
+        cur.preis_mu = mu;
+        cur.preis_sigma = sigma;
+    }
     let final_eval = evaluate(&ctx, &cur, &|_| true);
     let final_findings = locate(&ctx, &cur_cv.resid, &final_eval.pred);
     let (sim_cfg, sim_theta) = power_summary(&ctx, &cur, &final_eval, ev_n);

@@ -217,8 +217,8 @@ impl Loads {
         let tau_max = ctx.creep_tau_max;
         let knee = cfg.hyst_bouc_wen.then(|| Knee::new(cfg.hyst_bw_n));
         let relays = (cfg.hyst_preisach && cfg.hysteresis.is_some()).then(|| {
-            let h0 = cfg.hysteresis.unwrap_or(1.0).min(ctx.hyst_r_max);
-            Preisach::new(ds.max_force(), h0, cfg.preis_mu, cfg.preis_sigma)
+            let (h0, mu, sigma) = preisach_acting(ctx, cfg);
+            Preisach::new(ds.max_force(), h0, mu, sigma)
         });
         let r_max = ctx.hyst_r_max;
         let mut loads: Vec<Vec<f64>> = match (cfg.hysteresis.map(|r| r.min(r_max)), cfg.hyst_share)
@@ -309,6 +309,23 @@ impl Loads {
             (self.loads[j][i] + (self.skew * k as f64 - lag) * self.slopes[j][i]).max(0.0)
         }
     }
+}
+
+/// The Preisach parameters that act: the median half-width between 3 % of the peak force and
+/// the hysteresis bound (`Context::hyst_r_max`), the centres' mean within -10 %..=100 % of the
+/// peak and their spread within 5 %..=100 % of it (narrower relays make a staircase in the load,
+/// a static law's share; a flat spread of centres makes the plays).
+pub fn preisach_acting(ctx: &Context, cfg: &Config) -> (f64, f64, f64) {
+    let fmax = ctx.ds.max_force().max(1e-9);
+    let h0 = cfg
+        .hysteresis
+        .unwrap_or(1.0)
+        .clamp(0.03 * fmax, ctx.hyst_r_max.max(0.03 * fmax));
+    (
+        h0,
+        cfg.preis_mu.clamp(-0.1 * fmax, fmax),
+        cfg.preis_sigma.clamp(0.05 * fmax, fmax),
+    )
 }
 
 /// The regressors of the per-node linear fit: the loads, the curvature sensitivity per sample,
