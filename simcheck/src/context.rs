@@ -45,7 +45,7 @@ pub struct Context<'a> {
     /// estimated from the first differences (median absolute difference / 0.954).
     pub force_deadband: f64,
     /// The force the forward model is driven with: the recorded force, 0 where it lies within
-    /// the load cell's noise of zero (below `force_deadband`). A law that rises steeply from
+    /// the load cell's noise of zero (below `force_deadband`, and below 2 % of the peak). A law that rises steeply from
     /// zero load (a logarithmic one) would otherwise turn the load cell's noise at rest into
     /// counts of predicted reading.
     pub force_model: Vec<f64>,
@@ -117,10 +117,13 @@ impl<'a> Context<'a> {
         let creep_tau_max = 3.0 * longest_loaded_span(ds);
         let load_scale = load_scale(ds, &g_obs, &rest);
         let force_deadband = force_deadband(&ds.force);
+        // At most 2 % of the peak force: on a slowly sampled recording the first differences
+        // are the signal, not the load cell's noise.
+        let zero_below = force_deadband.min(0.02 * ds.max_force());
         let force_model = ds
             .force
             .iter()
-            .map(|&f| if f < force_deadband { 0.0 } else { f })
+            .map(|&f| if f < zero_below { 0.0 } else { f })
             .collect();
         Context {
             ds,
