@@ -1,0 +1,303 @@
+//! The per-node weighted least squares of one evaluation: the observations undone through
+//! the crosstalk and the floor (kept between evaluations), the normal equations per node, and
+//! the common factors fitted with the nodes (a latent drift, per-trial sensitivities).
+
+use super::terms::Terms;
+use crate::context::Context;
+use crate::data::ReadoutMap;
+use crate::effects::Config;
+use crate::law::{Basis, RowMap};
+use crate::numeric::{hat, nnls, solve_spd};
+
+/// The observed conductance undone through the crosstalk and the floor (`g2`), with the weight
+/// of each observation in the residual domain (0: unusable), at the fit's samples only, node
+/// by node (`k * m + j` for the `j`-th of `m` samples: each node's fit reads its own run).
+pub struct Observed {
+    g2: Vec<f64>,
+    wgt: Vec<f64>,
+}
+
+/// What [`Observed`] depends on: the samples (their count, first and sum) and the floor and
+/// switch resistance it was undone through.
+pub type ObservedKey = (usize, usize, usize, u64, u64);
+
+impl Observed {
+    /// [`Observed::new`], kept in the context for the next evaluation with the same samples,
+    /// floor and crosstalk (most evaluations of a search change neither).
+    pub(super) fn cached(
+        ctx: &Context,
+        cfg: &Config,
+        fit_idx: &[usize],
+    ) -> std::sync::Arc<Observed> {
+        let key: ObservedKey = (
+            fit_idx.len(),
+            fit_idx.first().copied().unwrap_or(0),
+            fit_idx.iter().sum(),
+            cfg.floor().to_bits(),
+            cfg.crosstalk.unwrap_or(0.0).to_bits(),
+        );
+        if let Ok(cache) = ctx.observed.lock() {
+            if let Some((_, o)) = cache.iter().find(|(k, _)| *k == key) {
+                return o.clone();
+            }
+        }
+        let o = std::sync::Arc::new(Observed::new(ctx, cfg, fit_idx));
+        if let Ok(mut cache) = ctx.observed.lock() {
+            if cache.len() >= 8 {
+                cache.remove(0);
+            }
+            cache.push((key, o.clone()));
+        }
+        o
+    }
+
+    fn new(ctx: &Context, cfg: &Config, fit_idx: &[usize]) -> Observed {
+        let ds = ctx.ds;
+        let n = ds.n;
+        let r = cfg.floor();
+        let rs = cfg.crosstalk.unwrap_or(0.0);
+        let (rows, cols) = (ds.rows, ds.cols);
+        let mut g2 = vec![0.0; fit_idx.len() * n];
+        let mut wgt = vec![0.0; fit_idx.len() * n];
+        for (j, &i) in fit_idx.iter().enumerate() {
+            for row in 0..rows {
+                let base = i * n + row * cols;
+                let srow: f64 = if rs > 0.0 {
+                    ctx.g_obs[base..base + cols].iter().sum()
+                } else {
+                    0.0
+                };
+                let xf = (1.0 - rs * srow).max(0.05);
+                for c in 0..cols {
+                    let idx = base + c;
+                    let g1 = ctx.g_obs[idx] / xf;
+                    let rg = r * g1;
+                    if !ctx.usable[idx] || rg >= 0.9 {
+                        continue;
+                    }
+                    let out = (row * cols + c) * fit_idx.len() + j;
+                    g2[out] = g1 / (1.0 - rg);
+                    let d = ds.map.ddom_dg(ctx.g_obs[idx]) * xf * (1.0 - rg).powi(2);
+                    wgt[out] = d * d;
+                }
+            }
+        }
+        Observed { g2, wgt }
+    }
+}
+
+/// The per-node weighted least squares of one evaluation.
+pub(super) struct NodeFit<'a> {
+    pub(super) ctx: &'a Context<'a>,
+    pub(super) terms: &'a Terms,
+    pub(super) obs: &'a Observed,
+    /// The samples fitted on.
+    pub(super) fit_idx: &'a [usize],
+    pub(super) r: f64,
+}
+
+impl NodeFit<'_> {
+    /// Node `k`'s linear parameters given the thermal factor `m`. For readouts that are not
+    /// linear in conductance (resistance, divider) a few Gauss-Newton passes linearise the
+    /// residual domain around the current prediction instead of the observation (whose 1/G^2
+    /// weights would favour the highest-resistance samples). The normal equations are summed
+    /// per knot segment over the local regressors and then mapped to the full row (one
+    /// segment for the power law; see [`crate::law::RowMap`]).
+    pub(super) fn node(&self, k: usize, m: &[f64]) -> Vec<f64> {
+        let ds = self.ctx.ds;
+        let n = ds.n;
+        let lay = &self.terms.lay;
+        let pdim = lay.dim();
+        let vdim = self.terms.vdim();
+        let segments = self.terms.basis.as_ref().map_or(1, Basis::dim);
+        let gn_passes = if matches!(ds.map, ReadoutMap::Amplifier { .. }) {
+            0
+        } else {
+            2
+        };
+        let mut th = vec![0.0; pdim];
+        let mut v = vec![0.0; vdim];
+        let base = k * self.fit_idx.len();
+        for pass in 0..=gn_passes {
+            let mut s_loc = vec![0.0; segments * vdim * vdim];
+            let mut r_loc = vec![0.0; segments * vdim];
+            for (j, &i) in self.fit_idx.iter().enumerate() {
+                let w = self.obs.wgt[base + j];
+                if w == 0.0 {
+                    continue;
+                }
+                let mi = m[i];
+                let seg = self.terms.local(k, i, j, &mut v);
+                let (z, w) = if pass == 0 {
+                    (self.obs.g2[base + j] / mi, w * mi * mi)
+                } else {
+                    let zh = self.terms.z_local(&th, seg, &v).max(1e-15);
+                    let dom_of = |z: f64| {
+                        let g = (mi * z).max(1e-15);
+                        ds.map.dom(ds.map.from_g(g / (1.0 + self.r * g)))
+                    };
+                    let f0 = dom_of(zh);
+                    let d = (dom_of(zh * (1.0 + 1e-4)) - f0) / (zh * 1e-4);
+                    if !d.is_finite() || d == 0.0 {
+                        continue;
+                    }
+                    (zh + (self.ctx.dom_obs[i * n + k] - f0) / d, d * d)
+                };
+                let (sa, rb) = (
+                    &mut s_loc[seg * vdim * vdim..(seg + 1) * vdim * vdim],
+                    &mut r_loc[seg * vdim..(seg + 1) * vdim],
+                );
+                accumulate(sa, rb, &v, w, z);
+            }
+            let mut a = vec![0.0; pdim * pdim];
+            let mut b = vec![0.0; pdim];
+            for seg in 0..segments {
+                let map = RowMap::new(self.terms.basis.as_ref(), seg, lay.law_start() - 1);
+                map.add(
+                    &s_loc[seg * vdim * vdim..(seg + 1) * vdim * vdim],
+                    &r_loc[seg * vdim..(seg + 1) * vdim],
+                    vdim,
+                    &mut a,
+                    &mut b,
+                );
+            }
+            for u in 0..pdim {
+                for w in u + 1..pdim {
+                    a[u * pdim + w] = a[w * pdim + u];
+                }
+            }
+            th = self.solve(&mut a, &mut b);
+        }
+        th
+    }
+
+    /// The per-node normal equations solved: the power law as before (least squares, and a
+    /// baseline that came out negative refitted at zero); a spline with its coefficients
+    /// non-negative (a monotone law), the same rule for the baseline.
+    fn solve(&self, a: &mut [f64], b: &mut [f64]) -> Vec<f64> {
+        let lay = &self.terms.lay;
+        let pdim = lay.dim();
+        let constrained: Vec<bool> = (0..pdim).map(|u| u >= lay.law_start()).collect();
+        let solve = |a: &[f64], b: &[f64]| {
+            if self.terms.basis.is_some() {
+                nnls(a, b, pdim, &constrained)
+            } else {
+                solve_spd(a, b, pdim)
+            }
+        };
+        let th = solve(a, b);
+        if th[0] >= 0.0 {
+            return th;
+        }
+        // A conductance baseline cannot be negative (a constant force, for one, cannot
+        // separate it from the gain): refit with the baseline at zero.
+        for u in 0..pdim {
+            a[u * pdim] = 0.0;
+            a[u] = 0.0;
+        }
+        a[0] = 1.0;
+        b[0] = 0.0;
+        solve(a, b)
+    }
+
+    /// Each trial's sensitivity factor given the nodes' parameters (the force term's share of
+    /// the conductance, fitted per trial in closed form on the linearisation of the first
+    /// pass), normalised to a mean of 1 over trials.
+    pub(super) fn trial_gains(&self, theta: &[Vec<f64>], m: &[f64], trials: usize) -> Vec<f64> {
+        let ds = self.ctx.ds;
+        let n = ds.n;
+        let mut num = vec![0.0; trials];
+        let mut den = vec![0.0; trials];
+        for (jj, &i) in self.fit_idx.iter().enumerate() {
+            let j = ds.trial[i];
+            let mi = m[i];
+            for (k, th) in theta.iter().enumerate().take(n) {
+                let idx = k * self.fit_idx.len() + jj;
+                let w = self.obs.wgt[idx] * mi * mi;
+                if w == 0.0 {
+                    continue;
+                }
+                let q = self.terms.law(th, k, i, jj);
+                let rest = self.terms.z(th, k, i, jj) - self.terms.sens[i] * q;
+                num[j] += w * q * (self.obs.g2[idx] / mi - rest);
+                den[j] += w * q * q;
+            }
+        }
+        let mut g: Vec<f64> = num
+            .iter()
+            .zip(&den)
+            .map(|(a, b)| {
+                if *b > 0.0 {
+                    (a / b).clamp(0.05, 20.0)
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        let mean = g.iter().sum::<f64>() / trials.max(1) as f64;
+        if mean > 0.0 {
+            g.iter_mut().for_each(|v| *v /= mean);
+        }
+        g
+    }
+
+    /// The latent common-mode factor at `knots` given the nodes' parameters, normalised to a
+    /// mean of 1.
+    pub(super) fn latent(&self, knots: &[f64], theta: &[Vec<f64>]) -> Vec<f64> {
+        let ds = self.ctx.ds;
+        let n = ds.n;
+        let kk = knots.len();
+        let mut a = vec![0.0; kk * kk];
+        let mut b = vec![0.0; kk];
+        for (jj, &i) in self.fit_idx.iter().enumerate() {
+            let (j, w) = hat(knots, ds.t[i]);
+            for (k, th) in theta.iter().enumerate().take(n) {
+                let idx = k * self.fit_idx.len() + jj;
+                let wt = self.obs.wgt[idx];
+                if wt == 0.0 {
+                    continue;
+                }
+                let q = self.terms.z(th, k, i, jj);
+                let phi = [(j, (1.0 - w) * q), (j + 1, w * q)];
+                for &(u, xu) in &phi {
+                    if u >= kk {
+                        continue;
+                    }
+                    b[u] += wt * xu * self.obs.g2[idx];
+                    for &(v, xv) in &phi {
+                        if v < kk {
+                            a[u * kk + v] += wt * xu * xv;
+                        }
+                    }
+                }
+            }
+        }
+        // A light pull towards 1 keeps knots without training data at 1.
+        let diag = (0..kk).map(|u| a[u * kk + u]).fold(0.0, f64::max) * 1e-4 + 1e-300;
+        for u in 0..kk {
+            a[u * kk + u] += diag;
+            b[u] += diag;
+        }
+        let mut v = solve_spd(&a, &b, kk);
+        let mean = v.iter().sum::<f64>() / kk as f64;
+        if mean > 0.0 {
+            v.iter_mut().for_each(|x| *x /= mean);
+        }
+        v
+    }
+}
+
+/// Adds one weighted observation `z` with regressors `xrow` to the lower triangle of the
+/// normal equations `a` and to `b`.
+fn accumulate(a: &mut [f64], b: &mut [f64], xrow: &[f64], w: f64, z: f64) {
+    let pdim = xrow.len();
+    for u in 0..pdim {
+        if xrow[u] == 0.0 {
+            continue;
+        }
+        b[u] += w * xrow[u] * z;
+        for v in 0..=u {
+            a[u * pdim + v] += w * xrow[u] * xrow[v];
+        }
+    }
+}

@@ -1,0 +1,202 @@
+//! The loads the force law sees: the recorded force through the effects in the load path
+//! (hysteresis as play operators, a Bouc-Wen state or Preisach relays; creep's low-pass; scan
+//! skew's time shift), per node when the hysteresis acts on each node's own load.
+
+use crate::context::Context;
+use crate::effects::Config;
+use crate::forms::{bouc_wen_load, load_series, Knee};
+use crate::law::Law;
+use crate::numeric::PowTable;
+use crate::preisach::Preisach;
+
+/// The load each node's force law sees, per node (one series for all nodes unless hysteresis
+/// acts in the load path), and its time slopes when scan skew is on: node `k` reads the force
+/// `k * dt_node` later in the frame, to first order `p_k(t) = p(t) + k dt_node dp/dt`, and the
+/// first node of each row also settles after the row switch, a lag of `scan_settle`.
+/// The effects' states run on every `step`-th sample (1 unless a long recording is searched,
+/// see [`Context::state_stride`]); the series hold every sample of that grid, or, in the
+/// search (`compact`), only the samples the fit looks at, in order.
+pub(super) struct Loads {
+    loads: Vec<Vec<f64>>,
+    slopes: Vec<Vec<f64>>,
+    skew: f64,
+    settle: f64,
+    cols: usize,
+    step: usize,
+    compact: bool,
+}
+
+/// The grid the effects' states run on: every `step`-th sample's time, interval, force and
+/// whether the fit needs its load (all when `None`).
+struct Grid<'a> {
+    /// The force above which creep that stays with the load counts the load as on.
+    on_n: f64,
+    t: Vec<f64>,
+    dt: Vec<f64>,
+    force: std::borrow::Cow<'a, [f64]>,
+    need: Option<Vec<bool>>,
+}
+
+impl<'a> Grid<'a> {
+    fn new(ctx: &'a Context, need: Option<&[bool]>, step: usize) -> Grid<'a> {
+        let ds = ctx.ds;
+        let t: Vec<f64> = ds.t.iter().step_by(step).copied().collect();
+        let mut dt: Vec<f64> = Vec::with_capacity(t.len());
+        dt.push(step as f64 * ds.dt());
+        dt.extend(t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
+        let f = &ctx.force_model;
+        let force = if step == 1 {
+            std::borrow::Cow::Borrowed(&f[..])
+        } else {
+            std::borrow::Cow::Owned(f.iter().step_by(step).copied().collect())
+        };
+        let need = need.map(|m| m.iter().step_by(step).copied().collect());
+        Grid {
+            on_n: 0.05 * ds.max_force(),
+            t,
+            dt,
+            force,
+            need,
+        }
+    }
+
+    /// The load series of the load `f` (see [`load_series`]) and its largest value.
+    fn series(&self, f: impl Iterator<Item = f64>, cfg: &Config, tau_max: f64) -> Vec<f64> {
+        let mut p = Vec::with_capacity(self.t.len());
+        load_series(
+            f,
+            &self.dt,
+            cfg,
+            tau_max,
+            self.on_n,
+            self.need.as_deref(),
+            &mut p,
+        );
+        p
+    }
+}
+
+impl Loads {
+    pub(super) fn new(
+        ctx: &Context,
+        cfg: &Config,
+        skew: f64,
+        need: Option<&[bool]>,
+        step: usize,
+    ) -> Loads {
+        let ds = ctx.ds;
+        let len = ds.len();
+        let grid = Grid::new(ctx, need, step);
+        let tau_max = ctx.creep_tau_max;
+        let knee = cfg.hyst_bouc_wen.then(|| Knee::new(cfg.hyst_bw_n));
+        let relays = (cfg.hyst_preisach && cfg.hysteresis.is_some()).then(|| {
+            let (h0, mu, sigma) = preisach_acting(ctx, cfg);
+            Preisach::new(ds.max_force(), h0, mu, sigma)
+        });
+        let r_max = ctx.hyst_r_max;
+        let mut loads: Vec<Vec<f64>> = match (cfg.hysteresis.map(|r| r.min(r_max)), cfg.hyst_share)
+        {
+            (Some(r), Some(share)) => crate::parallel::map(ctx.load_scale.len(), |k| {
+                let sc = ctx.load_scale[k];
+                if let Some(relays) = &relays {
+                    return grid.series(relays.load(&grid.force, share, sc), cfg, tau_max);
+                }
+                if let Some(knee) = &knee {
+                    let f = bouc_wen_load(&grid.force, r, knee, share, sc, ctx.force_deadband);
+                    return grid.series(f, cfg, tau_max);
+                }
+                // The two play operators of `play_gap`, run inline (no temporary series).
+                let (r1, r4) = (r * sc, 4.0 * r * sc);
+                let mut z: Option<(f64, f64)> = None;
+                let f = grid.force.iter().map(|&fi| {
+                    let l = fi.max(0.0);
+                    let (a, b) = z.map_or((l + r1, l + r4), |(a, b)| {
+                        (a.clamp(l - r1, l + r1), b.clamp(l - r4, l + r4))
+                    });
+                    z = Some((a, b));
+                    fi + share * ((a - l) + cfg.hyst_mix * (b - l))
+                });
+                grid.series(f, cfg, tau_max)
+            }),
+            _ => vec![grid.series(grid.force.iter().copied(), cfg, tau_max)],
+        };
+        // The power law, p = L^n (a spline reads the load itself).
+        if cfg.law == Law::Power {
+            let l_max = loads
+                .iter()
+                .map(|p| p.iter().fold(0.0f64, |a, &b| a.max(b)))
+                .fold(0.0f64, f64::max);
+            let law = PowTable::new(l_max, cfg.exponent);
+            for p in loads.iter_mut() {
+                p.iter_mut().for_each(|v| *v = law.at(*v));
+            }
+        }
+        let t = &grid.t;
+        let slopes: Vec<Vec<f64>> = if skew != 0.0 {
+            let m = t.len();
+            loads
+                .iter()
+                .map(|p| {
+                    (0..m)
+                        .map(|j| {
+                            let (a, b) = (j.saturating_sub(1), (j + 1).min(m - 1));
+                            let span = t[b] - t[a];
+                            if span > 0.0 {
+                                (p[b] - p[a]) / span
+                            } else {
+                                0.0
+                            }
+                        })
+                        .collect()
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let compact = grid.need.is_some();
+        debug_assert!(compact || loads.iter().all(|p| p.len() == len.div_ceil(step)));
+        Loads {
+            loads,
+            slopes,
+            skew,
+            settle: cfg.scan_settle,
+            cols: ds.cols.max(1),
+            step,
+            compact,
+        }
+    }
+
+    /// The force-law term `p` (the power law) or the load (a spline) of node `k` at sample `i`
+    /// (a multiple of `step`), the `jj`-th the fit looks at.
+    pub(super) fn at(&self, k: usize, i: usize, jj: usize) -> f64 {
+        let j = k.min(self.loads.len() - 1);
+        let i = if self.compact { jj } else { i / self.step };
+        if self.slopes.is_empty() {
+            self.loads[j][i]
+        } else {
+            let lag = if k.is_multiple_of(self.cols) {
+                self.settle
+            } else {
+                0.0
+            };
+            (self.loads[j][i] + (self.skew * k as f64 - lag) * self.slopes[j][i]).max(0.0)
+        }
+    }
+}
+
+/// The Preisach parameters that act: the median half-width between 3 % of the peak force and
+/// the hysteresis bound (`Context::hyst_r_max`), the centres' mean within -10 %..=100 % of the
+/// peak and their spread within 5 %..=100 % of it (narrower relays make a staircase in the load,
+/// a static law's share; a flat spread of centres makes the plays).
+pub fn preisach_acting(ctx: &Context, cfg: &Config) -> (f64, f64, f64) {
+    let fmax = ctx.ds.max_force().max(1e-9);
+    let h0 = cfg
+        .hysteresis
+        .unwrap_or(1.0)
+        .clamp(0.03 * fmax, ctx.hyst_r_max.max(0.03 * fmax));
+    (
+        h0,
+        cfg.preis_mu.clamp(-0.1 * fmax, fmax),
+        cfg.preis_sigma.clamp(0.05 * fmax, fmax),
+    )
+}

@@ -1,0 +1,295 @@
+//! The diagnosis's forward model: the simulator's physics, written so that every per-node
+//! parameter is fitted by weighted linear least squares inside each evaluation and only a few
+//! global parameters (force-law exponent, resistance floor, and each effect's own) are searched.
+//!
+//! Per node `k` and sample `i`: load `L = F` (shifted in time by scan skew, passed through the
+//! hysteresis, play operators or a Bouc-Wen state, and the creep low-pass), `p = L^n`;
+//! conductance `G = m_i (b_k + [c_k kappa_i] + a_k s_i p)` with the thermal factor `m`, the
+//! curvature sensitivity `s` and the curvature baseline term; then the resistance floor
+//! `G / (1 + r G)`, the row crosstalk `G (1 - Rs sum_row G)`, and the readout.
+
+mod fit;
+mod loads;
+mod terms;
+
+pub use fit::{Observed, ObservedKey};
+pub use loads::preisach_acting;
+
+use crate::context::Context;
+use crate::effects::{Config, Thermal};
+pub use crate::numeric::{centre_by_level, play_gap, solve_spd};
+use crate::numeric::{hat, lowpass};
+use fit::NodeFit;
+use terms::Terms;
+
+/// Result of one evaluation.
+pub struct Eval {
+    /// Predicted reading in the residual domain, sample-major.
+    pub pred: Vec<f64>,
+    /// Per-node linear parameters: intercept(s), [curvature slope], gain.
+    pub theta: Vec<Vec<f64>>,
+    /// Thermal factor per sample (1 without thermal drift).
+    pub m: Vec<f64>,
+    /// The latent thermal values at the knots after fitting (if latent).
+    pub latent: Option<Vec<f64>>,
+    /// The per-trial sensitivities after fitting (if the sensitivity is per trial).
+    pub trial_gains: Option<Vec<f64>>,
+    /// Training SSE (only when predictions were not requested).
+    pub train_sse: f64,
+}
+
+/// Evaluates `cfg`: fits the per-node linear parameters on the samples where `train(i)` is
+/// true and predicts every sample.
+pub fn evaluate(ctx: &Context, cfg: &Config, train: &dyn Fn(usize) -> bool) -> Eval {
+    evaluate_with(ctx, cfg, train, 1, true)
+}
+
+/// As [`evaluate`], predicting only the samples it does not train on (the others are 0): what
+/// a cross-validation fold needs.
+pub fn evaluate_held_out(ctx: &Context, cfg: &Config, train: &dyn Fn(usize) -> bool) -> Eval {
+    evaluate_inner(ctx, cfg, train, 1, true, true)
+}
+
+/// As [`evaluate`], fitting on every `stride`-th training sample; with `want_pred` false only
+/// the training SSE over those samples is computed (`Eval::train_sse`; `pred` stays empty).
+pub fn evaluate_with(
+    ctx: &Context,
+    cfg: &Config,
+    train: &dyn Fn(usize) -> bool,
+    stride: usize,
+    want_pred: bool,
+) -> Eval {
+    evaluate_inner(ctx, cfg, train, stride, want_pred, false)
+}
+
+fn evaluate_inner(
+    ctx: &Context,
+    cfg: &Config,
+    train: &dyn Fn(usize) -> bool,
+    stride: usize,
+    want_pred: bool,
+    held_out_only: bool,
+) -> Eval {
+    let stride = stride.max(1);
+    let ds = ctx.ds;
+    let (len, n) = (ds.len(), ds.n);
+    let mut dt: Vec<f64> = Vec::with_capacity(len);
+    dt.push(ds.dt());
+    dt.extend(ds.t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
+    // The samples the per-node fit looks at.
+    let fit_idx: Vec<usize> = (0..len).step_by(stride).filter(|&i| train(i)).collect();
+    // The effects' states run on every sample, or, in the search on a long recording, on every
+    // `state_stride`-th (the fit's samples lie on that grid).
+    let step = ctx.state_stride();
+    let step = if !want_pred && stride.is_multiple_of(step) {
+        step
+    } else {
+        1
+    };
+    let mut terms = Terms::new(ctx, cfg, &fit_idx, want_pred, step);
+    let (mut m, mut latent) = thermal_factor(ctx, cfg, &dt);
+    if cfg.thermal_gain_only && latent.is_none() {
+        // The drift scales the force term only: it joins the sensitivity.
+        for (s, mi) in terms.sens.iter_mut().zip(m.iter_mut()) {
+            *s *= *mi;
+            *mi = 1.0;
+        }
+    }
+    let obs = Observed::cached(ctx, cfg, &fit_idx);
+    let mut gains = cfg.curv_trials.clone();
+    let mut theta = vec![vec![0.0; terms.lay.dim()]; n];
+    // A latent drift or per-trial sensitivities are fitted with the nodes, alternately.
+    let iterations = if latent.is_some() || gains.is_some() {
+        3
+    } else {
+        1
+    };
+    for it in 0..iterations {
+        if let Some((knots, values)) = &latent {
+            apply_latent(ctx, knots, values, &mut m);
+        }
+        if let Some(g) = &gains {
+            terms.sens = ds.trial.iter().map(|&j| g[j]).collect();
+        }
+        let fit = NodeFit {
+            ctx,
+            terms: &terms,
+            obs: &obs,
+            fit_idx: &fit_idx,
+            r: cfg.floor(),
+        };
+        theta = crate::parallel::map(n, |k| fit.node(k, &m));
+        if it + 1 == iterations {
+            break;
+        }
+        // Latent thermal: refit the common-mode factor on the knots.
+        if let Some((knots, values)) = &mut latent {
+            *values = fit.latent(knots, &theta);
+        }
+        if let Some(g) = &mut gains {
+            *g = fit.trial_gains(&theta, &m, g.len());
+        }
+    }
+    let looked: &[usize] = if want_pred { &[] } else { &fit_idx };
+    let skip: Vec<bool> = if held_out_only {
+        (0..len).map(train).collect()
+    } else {
+        Vec::new()
+    };
+    let (pred, train_sse) = predict(ctx, cfg, &terms, &theta, &m, looked, want_pred, &skip);
+    Eval {
+        pred,
+        theta,
+        m,
+        latent: latent.map(|l| l.1),
+        trial_gains: gains,
+        train_sse,
+    }
+}
+
+/// The thermal factor per sample from the recorded temperature, or all ones and the latent
+/// knots (fitted with the nodes) when the drift is latent.
+#[allow(clippy::type_complexity)]
+fn thermal_factor(
+    ctx: &Context,
+    cfg: &Config,
+    dt: &[f64],
+) -> (Vec<f64>, Option<(Vec<f64>, Vec<f64>)>) {
+    let ds = ctx.ds;
+    let len = ds.len();
+    let mut m = vec![1.0; len];
+    let mut latent: Option<(Vec<f64>, Vec<f64>)> = None;
+    match &cfg.thermal {
+        Some(Thermal::Recorded { alpha_per_k, tau_s }) => {
+            if let Some(temp) = &ds.temp {
+                let t0 = temp.iter().sum::<f64>() / len as f64;
+                let ts = lowpass(temp, dt, *tau_s);
+                for (mi, t) in m.iter_mut().zip(&ts) {
+                    *mi = (1.0 + alpha_per_k * (t - t0)).max(0.05);
+                }
+            }
+        }
+        Some(Thermal::Latent { knots_s, values }) => {
+            latent = Some((knots_s.clone(), values.clone()));
+        }
+        None => {}
+    }
+    (m, latent)
+}
+
+/// The latent thermal factor at every sample, piecewise linear through `values` at `knots`.
+fn apply_latent(ctx: &Context, knots: &[f64], values: &[f64], m: &mut [f64]) {
+    for (i, mi) in m.iter_mut().enumerate() {
+        let (j, w) = hat(knots, ctx.ds.t[i]);
+        let v = if knots.len() < 2 {
+            values[0]
+        } else {
+            values[j] * (1.0 - w) + values[j + 1] * w
+        };
+        *mi = v.max(0.05);
+    }
+}
+
+/// The forward prediction of every sample (with `want_pred`; 0 where `skip` holds), or only the
+/// SSE over the samples in `looked`. Rows are independent (crosstalk couples the nodes of a row): each
+/// row's SSE is summed over samples in order and the rows' sums in row order.
+#[allow(clippy::too_many_arguments)]
+fn predict(
+    ctx: &Context,
+    cfg: &Config,
+    terms: &Terms,
+    theta: &[Vec<f64>],
+    m: &[f64],
+    looked: &[usize],
+    want_pred: bool,
+    skip: &[bool],
+) -> (Vec<f64>, f64) {
+    let ds = ctx.ds;
+    let (len, n) = (ds.len(), ds.n);
+    let r = cfg.floor();
+    let rs = cfg.crosstalk.unwrap_or(0.0);
+    let (rows, cols) = (ds.rows, ds.cols);
+    let row_of = |row: usize| -> (Vec<f64>, f64) {
+        let mut out = if want_pred {
+            Vec::with_capacity(len * cols)
+        } else {
+            Vec::new()
+        };
+        let mut sse = 0.0;
+        let mut gs = vec![0.0; cols];
+        let mut one = |i: usize, j: usize| {
+            if skip.get(i).copied().unwrap_or(false) {
+                out.extend(std::iter::repeat_n(0.0, cols));
+                return;
+            }
+            let mut srow = 0.0;
+            for (c, gc) in gs.iter_mut().enumerate() {
+                let k = row * cols + c;
+                let z = terms.z(&theta[k], k, i, j);
+                let g = (m[i] * z).max(1e-12);
+                *gc = g / (1.0 + r * g);
+                srow += *gc;
+            }
+            let xf = (1.0 - rs * srow).max(0.05);
+            for (c, gc) in gs.iter().enumerate() {
+                let idx = i * n + row * cols + c;
+                let v = ds.map.dom(ds.map.from_g(gc * xf));
+                if want_pred {
+                    out.push(v);
+                } else if ctx.usable[idx] {
+                    sse += (v - ctx.dom_obs[idx]).powi(2);
+                }
+            }
+        };
+        if want_pred {
+            (0..len).for_each(|i| one(i, i));
+        } else {
+            looked.iter().enumerate().for_each(|(j, &i)| one(i, j));
+        }
+        (out, sse)
+    };
+    let per_row = crate::parallel::map(rows, row_of);
+    let train_sse = per_row.iter().map(|r| r.1).sum();
+    let mut pred = if want_pred {
+        vec![0.0; len * n]
+    } else {
+        Vec::new()
+    };
+    if want_pred {
+        for (row, (vals, _)) in per_row.iter().enumerate() {
+            for i in 0..len {
+                let dst = i * n + row * cols;
+                pred[dst..dst + cols].copy_from_slice(&vals[i * cols..(i + 1) * cols]);
+            }
+        }
+    }
+    (pred, train_sse)
+}
+
+/// Where each per-node linear parameter sits in `theta`: the intercept, the curvature-baseline
+/// slope (on the curvature, or on the trial's no-load shift), the hysteresis amplitude, and
+/// last the static law's parameters (the power law's gain, or a spline's coefficients).
+#[derive(Debug, Clone, Copy)]
+pub struct Layout {
+    pub n_int: usize,
+    pub curv_k: bool,
+    pub hyst: bool,
+    /// The static law's parameters per node.
+    pub law: usize,
+}
+
+impl Layout {
+    pub fn dim(&self) -> usize {
+        self.law_start() + self.law
+    }
+
+    /// Index of the additive hysteresis amplitude.
+    pub fn hyst_index(&self) -> usize {
+        self.n_int + usize::from(self.curv_k)
+    }
+
+    /// Index of the static law's first parameter.
+    pub fn law_start(&self) -> usize {
+        self.n_int + usize::from(self.curv_k) + usize::from(self.hyst)
+    }
+}

@@ -1,0 +1,206 @@
+//! The regressors of the per-node linear fit: the loads, the curvature sensitivity, the
+//! additive hysteresis term, the curvature-baseline regressor and a spline law's basis.
+
+use super::loads::Loads;
+use super::Layout;
+use crate::context::Context;
+use crate::effects::Config;
+use crate::forms::max_scan_skew;
+use crate::law::{Basis, Law};
+use crate::numeric::{centre_by_level, play_gap};
+
+/// The regressors of the per-node linear fit: the loads, the curvature sensitivity per sample,
+/// the additive hysteresis term and the curvature-baseline regressor, the spline's basis (with
+/// a spline law), and where each sits in `theta`.
+pub(super) struct Terms {
+    pub(super) lay: Layout,
+    loads: Loads,
+    pub(super) basis: Option<Basis>,
+    pub(super) sens: Vec<f64>,
+    hyst: Vec<f64>,
+    curv_x: Vec<f64>,
+}
+
+impl Terms {
+    pub(super) fn new(
+        ctx: &Context,
+        cfg: &Config,
+        fit_idx: &[usize],
+        want_pred: bool,
+        step: usize,
+    ) -> Terms {
+        let ds = ctx.ds;
+        let skew = cfg.scan_skew.map_or(0.0, |v| v.min(max_scan_skew(ds)));
+        // The slopes scan skew needs read the neighbours of each sample.
+        let need: Option<Vec<bool>> = (!want_pred && skew == 0.0).then(|| {
+            let mut need = vec![false; ds.len()];
+            fit_idx.iter().for_each(|&i| need[i] = true);
+            need
+        });
+        let loads = Loads::new(ctx, cfg, skew, need.as_deref(), step);
+        let sens = sensitivity(ctx, cfg);
+        let curv_x = curvature_regressor(ctx, cfg);
+        let hyst = additive_hysteresis(ctx, cfg);
+        let basis = match cfg.law {
+            Law::Power => None,
+            Law::Spline(m) => Some(Basis::new(m, ds.max_force())),
+        };
+        let lay = Layout {
+            n_int: 1,
+            curv_k: cfg.curv_base,
+            hyst: !hyst.is_empty(),
+            law: cfg.law.per_node(),
+        };
+        Terms {
+            lay,
+            loads,
+            basis,
+            sens,
+            hyst,
+            curv_x,
+        }
+    }
+
+    /// The number of local values (see [`Terms::local`]).
+    pub(super) fn vdim(&self) -> usize {
+        self.lay.law_start() + if self.basis.is_some() { 3 } else { 1 }
+    }
+
+    /// Node `k`'s local regressors at sample `i`, the `j`-th the fit looks at (written into
+    /// `v`, [`Terms::vdim`] long: 1, the curvature-baseline and hysteresis regressors, and the
+    /// law's value (power) or the sensitivity and the two values that vary within the load's
+    /// knot segment (spline), see [`crate::law::RowMap`]); returns the segment.
+    pub(super) fn local(&self, k: usize, i: usize, j: usize, v: &mut [f64]) -> usize {
+        v[0] = 1.0;
+        if self.lay.curv_k {
+            v[self.lay.n_int] = self.curv_x[i];
+        }
+        if self.lay.hyst {
+            v[self.lay.hyst_index()] = self.sens[i] * self.hyst[i];
+        }
+        let o = self.lay.law_start();
+        let l = self.loads.at(k, i, j);
+        match &self.basis {
+            None => {
+                v[o] = self.sens[i] * l;
+                0
+            }
+            Some(b) => {
+                let (s, a, c) = b.local(l);
+                v[o] = self.sens[i];
+                v[o + 1] = self.sens[i] * a;
+                v[o + 2] = self.sens[i] * c;
+                s
+            }
+        }
+    }
+
+    /// The prediction `theta . x` from local values `v` in segment `s`.
+    pub(super) fn z_local(&self, th: &[f64], s: usize, v: &[f64]) -> f64 {
+        let o = self.lay.law_start();
+        let z: f64 = th[..o].iter().zip(&v[..o]).map(|(t, x)| t * x).sum();
+        match &self.basis {
+            None => z + th[o] * v[o],
+            Some(b) => {
+                let c = &th[o..];
+                let below: f64 = c[..s].iter().zip(b.full()).map(|(c, f)| c * f).sum();
+                z + v[o] * below + c[s] * v[o + 1] + c.get(s + 1).map_or(0.0, |cn| cn * v[o + 2])
+            }
+        }
+    }
+
+    /// Node `k`'s static law at sample `i` (the `j`-th the fit looks at), before the
+    /// sensitivity factor.
+    pub(super) fn law(&self, th: &[f64], k: usize, i: usize, j: usize) -> f64 {
+        let l = self.loads.at(k, i, j);
+        match &self.basis {
+            None => th[self.lay.law_start()] * l,
+            Some(b) => b.value(&th[self.lay.law_start()..], l),
+        }
+    }
+
+    /// Node `k`'s conductance before the thermal factor at sample `i` (the `j`-th the fit looks
+    /// at), with parameters `th`.
+    pub(super) fn z(&self, th: &[f64], k: usize, i: usize, j: usize) -> f64 {
+        let hv = if self.lay.hyst {
+            self.sens[i] * self.hyst[i]
+        } else {
+            0.0
+        };
+        let cx = if self.lay.curv_k { self.curv_x[i] } else { 0.0 };
+        let l = self.loads.at(k, i, j);
+        let mut z = th[0];
+        if self.lay.curv_k {
+            z += th[self.lay.n_int] * cx;
+        }
+        if self.lay.hyst {
+            z += th[self.lay.hyst_index()] * hv;
+        }
+        match &self.basis {
+            None => z + th[self.lay.law_start()] * (self.sens[i] * l),
+            Some(b) => z + self.sens[i] * b.value(&th[self.lay.law_start()..], l),
+        }
+    }
+}
+
+/// Curvature sensitivity per sample: `1 / (1 + kappa / kappa_s)` or `1 - kappa / kappa_0`,
+/// with the trial's no-load shift in place of the curvature when there is no curvature column.
+fn sensitivity(ctx: &Context, cfg: &Config) -> Vec<f64> {
+    let ds = ctx.ds;
+    let form = |x: f64| -> f64 {
+        if cfg.curv_linear {
+            (1.0 - x).max(0.05)
+        } else {
+            1.0 / (1.0 + x).max(0.05)
+        }
+    };
+    if let Some(g) = &cfg.curv_trials {
+        return ds.trial.iter().map(|&j| g[j]).collect();
+    }
+    match (cfg.curv_sens, &ds.kappa) {
+        (Some(ks), Some(kappa)) => kappa
+            .iter()
+            .map(|&k| form(k.max(0.0) / ks.max(1e-6)))
+            .collect(),
+        (Some(beta), None) => ds
+            .trial
+            .iter()
+            .map(|&j| form(beta * ctx.trial_shift[j]))
+            .collect(),
+        _ => vec![1.0; ds.len()],
+    }
+}
+
+/// Curvature baseline: a per-node slope on the curvature, or, without a curvature column, on
+/// the trial's common no-load shift (the curvature's footprint: rank one in trial x node).
+fn curvature_regressor(ctx: &Context, cfg: &Config) -> Vec<f64> {
+    let ds = ctx.ds;
+    if cfg.curv_base {
+        match &ds.kappa {
+            Some(k) => k.clone(),
+            None => ds.trial.iter().map(|&j| ctx.trial_shift[j]).collect(),
+        }
+    } else {
+        Vec::new()
+    }
+}
+
+/// Hysteresis: two play operators (half-widths r and 4 r) mixed by one global weight, so the
+/// loop's shape (sharp or rounded corners) is fitted, not assumed; one amplitude per node. The
+/// gap is centred on its mean at the same force level, so the term only carries the difference
+/// between branches (a loop), never a level-dependent offset the static law should carry.
+fn additive_hysteresis(ctx: &Context, cfg: &Config) -> Vec<f64> {
+    match cfg.hysteresis.map(|r| r.min(ctx.hyst_r_max)) {
+        Some(r) if cfg.hyst_share.is_none() => {
+            let narrow = play_gap(&ctx.force_model, r);
+            let wide = play_gap(&ctx.force_model, 4.0 * r);
+            let mixed = narrow
+                .iter()
+                .zip(&wide)
+                .map(|(a, b)| a + cfg.hyst_mix * b)
+                .collect();
+            centre_by_level(&ctx.force_model, mixed)
+        }
+        _ => Vec::new(),
+    }
+}
