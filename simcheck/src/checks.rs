@@ -17,6 +17,19 @@ pub fn signature_check(ds: &Dataset, e: EffectKind, before: &Cv, after: &Cv, v: 
         v.accepted = false;
         v.keep = false;
     }
+    // Thermal drift is a gain: it must carry the residual alike near the rest level and far
+    // above it (an additive wander common to the nodes, fitted as a factor, does not).
+    if e == EffectKind::ThermalDrift {
+        let [rest, loaded] = gain_betas(ds, before, after);
+        v.gain_betas = Some([rest, loaded]);
+        if rest.is_finite() && loaded.is_finite() {
+            let ratio = loaded / rest;
+            if !(rest > 0.0 && loaded > 0.0 && (GAIN_RATIO[0]..=GAIN_RATIO[1]).contains(&ratio)) {
+                v.accepted = false;
+                v.keep = false;
+            }
+        }
+    }
     // Hysteresis must be rate-independent (a loop that grows with the loading rate is a lag),
     // and a loop: what it changes must follow the loading direction.
     if e == EffectKind::Hysteresis {
@@ -161,6 +174,59 @@ pub fn ramp_betas(ds: &Dataset, before: &Cv, after: &Cv) -> [f64; 2] {
 /// ramps and large ones on fast ramps): a Bouc-Wen loop with n = 2 gave 0.87-0.90 while removing
 /// 78-80 % of the held-out SSE, and was refused at the old lower bound of 0.9.
 pub const RATE_RATIO: [f64; 2] = [0.5, 2.0];
+
+/// Thermal drift acts as a gain: the ratio of its betas far above the rest level and at rest
+/// must lie in this band, a factor of two either way (as [`RATE_RATIO`]).
+pub const GAIN_RATIO: [f64; 2] = [0.5, 2.0];
+
+/// How much of the current residual a thermal drift's change explains at rest and far above
+/// the rest level. With `r` the current held-out residual and `d` the change the drift makes
+/// to the prediction, `beta = sum d (-r) / sum d^2` on no-load samples (force at most 2 % of
+/// its peak, every node) and on loaded node-samples (force at least a quarter of the peak,
+/// the half of them whose reading lies furthest from the node's rest level). A gain change
+/// moves both in proportion to the reading and has about the same beta on each; an additive
+/// wander common to the nodes, fitted by a factor, is matched at rest and overshot (or missed)
+/// under load. `NaN` where the drift changes nothing (a drift of the force term only leaves
+/// the rest level alone: the check does not apply).
+pub fn gain_betas(ds: &Dataset, before: &Cv, after: &Cv) -> [f64; 2] {
+    let (len, n) = (ds.len(), ds.n);
+    let fmax = ds.max_force().max(1e-12);
+    let dom: Vec<f64> = ds.y.iter().map(|&y| ds.map.dom(y)).collect();
+    let rest: Vec<bool> = ds.force.iter().map(|&f| f <= 0.02 * fmax).collect();
+    let level: Vec<f64> = (0..n)
+        .map(|k| {
+            let mut v: Vec<f64> = (0..len).filter(|&i| rest[i]).map(|i| dom[i * n + k]).collect();
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() / 2).copied().unwrap_or(0.0)
+        })
+        .collect();
+    let mut far: Vec<(f64, usize)> = Vec::new();
+    for i in (0..len).filter(|&i| ds.force[i] >= 0.25 * fmax) {
+        for (k, lk) in level.iter().enumerate() {
+            far.push(((dom[i * n + k] - lk).abs(), i * n + k));
+        }
+    }
+    far.sort_by(|a, b| b.0.total_cmp(&a.0));
+    far.truncate(far.len() / 2);
+    let beta = |idx: &mut dyn Iterator<Item = usize>| -> (f64, f64) {
+        let (mut num, mut den, mut count) = (0.0, 0.0, 0usize);
+        for j in idx {
+            let d = after.resid[j] - before.resid[j];
+            num -= d * before.resid[j];
+            den += d * d;
+            count += 1;
+        }
+        (num / den, den / count.max(1) as f64)
+    };
+    let (b_rest, d_rest) =
+        beta(&mut (0..len).filter(|&i| rest[i]).flat_map(|i| (0..n).map(move |k| i * n + k)));
+    let (b_far, d_far) = beta(&mut far.iter().map(|p| p.1));
+    // A change at rest under 1 % of the loaded one (per sample, squared): the rest says nothing.
+    if !(d_rest > 0.01 * d_far) || !(d_far > 0.0) {
+        return [f64::NAN; 2];
+    }
+    [b_rest, b_far]
+}
 
 /// Block t statistic thermal drift needs on no-load samples.
 pub const MIN_REST_T: f64 = 2.0;

@@ -135,6 +135,9 @@ pub struct Verdict {
     /// Hysteresis only: the share of its change that follows the loading direction (see
     /// `checks::loop_share`).
     pub loop_share: Option<f64>,
+    /// Thermal drift only: the size of its contribution relative to the residual at rest and
+    /// far above the rest level (see `checks::gain_betas`).
+    pub gain_betas: Option<[f64; 2]>,
 }
 
 /// Block t statistic of the SSE reduction from `a` to `b` per block.
@@ -258,6 +261,7 @@ pub fn compare(
             && ic_gain > 0.0,
         ramp_betas: None,
         loop_share: None,
+        gain_betas: None,
     }
 }
 
