@@ -176,8 +176,11 @@ pub fn ramp_betas(ds: &Dataset, before: &Cv, after: &Cv) -> [f64; 2] {
 pub const RATE_RATIO: [f64; 2] = [0.5, 2.0];
 
 /// Thermal drift acts as a gain: the ratio of its betas far above the rest level and at rest
-/// must lie in this band, a factor of two either way (as [`RATE_RATIO`]).
-pub const GAIN_RATIO: [f64; 2] = [0.5, 2.0];
+/// must lie in this band, a factor of three either way. Set on training seeds: a shared wander
+/// fitted by the latent factor gave 0.15-0.20 (zoo-sat seeds 2, 3), true drifts 0.99-1.17 (the
+/// reference world, seed 1) and 2.2 (zoo-sat's two-lag quadratic law with creep, seed 3, where
+/// the wander at rest makes the rest beta uncertain).
+pub const GAIN_RATIO: [f64; 2] = [1.0 / 3.0, 3.0];
 
 /// How much of the current residual a thermal drift's change explains at rest and far above
 /// the rest level. With `r` the current held-out residual and `d` the change the drift makes
@@ -195,7 +198,10 @@ pub fn gain_betas(ds: &Dataset, before: &Cv, after: &Cv) -> [f64; 2] {
     let rest: Vec<bool> = ds.force.iter().map(|&f| f <= 0.02 * fmax).collect();
     let level: Vec<f64> = (0..n)
         .map(|k| {
-            let mut v: Vec<f64> = (0..len).filter(|&i| rest[i]).map(|i| dom[i * n + k]).collect();
+            let mut v: Vec<f64> = (0..len)
+                .filter(|&i| rest[i])
+                .map(|i| dom[i * n + k])
+                .collect();
             v.sort_by(f64::total_cmp);
             v.get(v.len() / 2).copied().unwrap_or(0.0)
         })
@@ -218,11 +224,14 @@ pub fn gain_betas(ds: &Dataset, before: &Cv, after: &Cv) -> [f64; 2] {
         }
         (num / den, den / count.max(1) as f64)
     };
-    let (b_rest, d_rest) =
-        beta(&mut (0..len).filter(|&i| rest[i]).flat_map(|i| (0..n).map(move |k| i * n + k)));
+    let (b_rest, d_rest) = beta(
+        &mut (0..len)
+            .filter(|&i| rest[i])
+            .flat_map(|i| (0..n).map(move |k| i * n + k)),
+    );
     let (b_far, d_far) = beta(&mut far.iter().map(|p| p.1));
     // A change at rest under 1 % of the loaded one (per sample, squared): the rest says nothing.
-    if !(d_rest > 0.01 * d_far) || !(d_far > 0.0) {
+    if d_rest.is_nan() || d_far.is_nan() || d_far <= 0.0 || d_rest <= 0.01 * d_far {
         return [f64::NAN; 2];
     }
     [b_rest, b_far]
@@ -259,6 +268,36 @@ mod tests {
                 (ds.force[b] - ds.force[a]) / (ds.t[b] - ds.t[a])
             })
             .collect()
+    }
+
+    #[test]
+    fn a_gain_carries_the_residual_at_rest_and_under_load_and_an_offset_does_not() {
+        let mut ds = presses();
+        let fmax = ds.max_force();
+        // Readings in counts: 100 at rest, 100 + 40 F under load (one node).
+        ds.y = ds.force.iter().map(|f| 100.0 + 40.0 * f).collect();
+        ds.map = crate::data::ReadoutMap::from_readout(&taxel_sim::SensorModel::default().readout);
+        let dom: Vec<f64> = ds.y.iter().map(|&y| ds.map.dom(y)).collect();
+        let slow: Vec<f64> = ds.t.iter().map(|t| (t / 30.0).sin()).collect();
+        // A gain drift of 1 % times `slow`: the residual it leaves, and the change that undoes it.
+        let gain_r: Vec<f64> = dom.iter().zip(&slow).map(|(y, s)| -0.01 * s * y).collect();
+        let after = cv(vec![0.0; ds.len()]);
+        let [rest, far] = gain_betas(&ds, &cv(gain_r.clone()), &after);
+        assert!(
+            (rest - 1.0).abs() < 1e-9 && (far - 1.0).abs() < 1e-9,
+            "{rest} {far}"
+        );
+        // An additive offset of the rest level's size, fitted as a gain that matches it at rest:
+        // the change overshoots under load by the reading's ratio to its rest level.
+        let offset_r: Vec<f64> = slow.iter().zip(&dom).map(|(s, _)| -s).collect();
+        let change = cv(offset_r
+            .iter()
+            .zip(&dom)
+            .map(|(r, y)| r - r * y / dom[0])
+            .collect());
+        let [rest, far] = gain_betas(&ds, &cv(offset_r), &change);
+        assert!(fmax > 0.0 && (rest - 1.0).abs() < 0.05, "{rest}");
+        assert!(far / rest < GAIN_RATIO[0], "{rest} {far}");
     }
 
     #[test]
