@@ -307,7 +307,7 @@ fn candidate_variants(
             .copied()
             .filter(|p| *p != Param::HystMix)
             .collect();
-        p_bw.extend([Param::HystShare, Param::HystLnN]);
+        p_bw.extend([Param::HystShare, Param::HystLnN, Param::HystAsym]);
         // Preisach relays in the load path (virgin start): half-widths around the plays'
         // half-widths, centres low or mid-range, both signs of the share.
         let fmax = ctx.ds.max_force().max(1e-9);
@@ -385,7 +385,7 @@ pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
         EffectKind::Creep => (2 * cfg.creep.as_ref().map_or(2, Vec::len), 0),
         // In the load path: half-width, mix and share; or Bouc-Wen saturation, exponent, share;
         // or Preisach half-width, centre, spread and share.
-        EffectKind::Hysteresis if cfg.hyst_preisach => (4, 0),
+        EffectKind::Hysteresis if cfg.hyst_preisach || cfg.hyst_bouc_wen => (4, 0),
         EffectKind::Hysteresis if cfg.hyst_share.is_some() => (3, 0),
         EffectKind::Hysteresis => (2, 1),
         EffectKind::ThermalDrift => match &cfg.thermal {
@@ -488,10 +488,11 @@ mod tests {
                 per_node: 0
             }
         );
+        // Bouc-Wen: saturation, exponent, asymmetry and share.
         assert_eq!(
             k(&bouc_wen.0[0]),
             ParamCount {
-                global: 3,
+                global: 4,
                 per_node: 0
             }
         );

@@ -96,6 +96,11 @@ pub struct Config {
     /// The Bouc-Wen state's exponent `n` (1: the classic exponential approach to saturation;
     /// larger: a sharper knee): `dz = du - (|du| z + du |z|) |z|^(n-1) / (2 r^n)`.
     pub hyst_bw_n: f64,
+    /// The Bouc-Wen state's asymmetry `a` in -0.9..=0.9 (0: the symmetric loop):
+    /// `dz = du - ((1 + a) |du| z + (1 - a) du |z|) |z|^(n-1) / (2 r^n)`, so the loop still
+    /// saturates at `r` while loading and unloading approach it at different rates (beta and
+    /// gamma of the textbook form, `beta + gamma = 1`).
+    pub hyst_bw_asym: f64,
     /// In-load hysteresis as a Preisach model instead (see [`crate::preisach`]): relays on the
     /// node's own load, half-widths around `hysteresis` (N), centres around `preis_mu` (N)
     /// with sd `preis_sigma` (N); the share is `hyst_share`.
@@ -139,6 +144,7 @@ impl Config {
             hyst_share: None,
             hyst_bouc_wen: false,
             hyst_bw_n: 1.0,
+            hyst_bw_asym: 0.0,
             hyst_preisach: false,
             preis_mu: 0.0,
             preis_sigma: 1.0,
@@ -192,6 +198,7 @@ impl Config {
                 c.hyst_share = None;
                 c.hyst_bouc_wen = false;
                 c.hyst_bw_n = 1.0;
+                c.hyst_bw_asym = 0.0;
                 c.hyst_preisach = false;
             }
             EffectKind::ThermalDrift => {

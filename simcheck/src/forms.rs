@@ -72,8 +72,10 @@ pub fn bouc_wen_load<'a>(
     share: f64,
     sc: f64,
     deadband: f64,
+    asym: f64,
 ) -> impl Iterator<Item = f64> + 'a {
     let r = r.max(1e-12);
+    let (beta, gamma) = (1.0 + asym, 1.0 - asym);
     let (inv_sc, inv_r, inv_2r) = (1.0 / sc, 1.0 / r, 0.5 / r);
     let (mut z, mut u_prev, mut play) = (0.0f64, 0.0f64, 0.0f64);
     force.iter().map(move |&fi| {
@@ -83,7 +85,8 @@ pub fn bouc_wen_load<'a>(
         let du = u - u_prev;
         u_prev = u;
         if du != 0.0 {
-            z += du - (du.abs() * z + du * z.abs()) * knee.at(z.abs() * inv_r) * inv_2r;
+            z += du
+                - (beta * du.abs() * z + gamma * du * z.abs()) * knee.at(z.abs() * inv_r) * inv_2r;
         }
         z = z.clamp(-r, r);
         fi + share * sc * z
@@ -173,12 +176,28 @@ mod tests {
     }
 
     #[test]
+    fn an_asymmetric_bouc_wen_leaves_saturation_at_its_own_rate() {
+        // Up to 5 N (the state saturates at 0.5), then 0.3 N back down.
+        let mut f: Vec<f64> = (0..=50).map(|i| i as f64 * 0.1).collect();
+        f.extend((1..=3).map(|i| 5.0 - i as f64 * 0.1));
+        let z = |a: f64| -> f64 {
+            let out: Vec<f64> = bouc_wen_load(&f, 0.5, &Knee::new(1.0), 1.0, 1.0, 0.0, a).collect();
+            out[out.len() - 1] - f[f.len() - 1]
+        };
+        // The symmetric state leaves saturation at the loading rate's mirror; a > 0 faster,
+        // a < 0 slower; every one stays within its saturation.
+        let (sym, fast, slow) = (z(0.0), z(0.5), z(-0.5));
+        assert!(fast < sym && sym < slow, "{fast} {sym} {slow}");
+        assert!([fast, sym, slow].iter().all(|v| v.abs() <= 0.5 + 1e-12));
+    }
+
+    #[test]
     fn a_bouc_wen_load_saturates_and_ignores_noise_inside_its_deadband() {
         // Ramp to 5 N, then hold with +-0.02 N of alternating noise: with a 0.06 N deadband the
         // state stays at its saturation, and the load is F + share z.
         let mut f: Vec<f64> = (0..=50).map(|i| i as f64 * 0.1).collect();
         f.extend((0..500).map(|i| 5.0 + if i % 2 == 0 { 0.02 } else { -0.02 }));
-        let out: Vec<f64> = bouc_wen_load(&f, 0.5, &Knee::new(2.0), 0.4, 1.0, 0.06).collect();
+        let out: Vec<f64> = bouc_wen_load(&f, 0.5, &Knee::new(2.0), 0.4, 1.0, 0.06, 0.0).collect();
         let last = f.len() - 1;
         assert!(
             (out[last] - f[last] - 0.4 * 0.5).abs() < 1e-3,
@@ -186,7 +205,7 @@ mod tests {
             out[last] - f[last]
         );
         // Without the deadband the noise walks the state down.
-        let raw: Vec<f64> = bouc_wen_load(&f, 0.5, &Knee::new(1.0), 0.4, 1.0, 0.0).collect();
+        let raw: Vec<f64> = bouc_wen_load(&f, 0.5, &Knee::new(1.0), 0.4, 1.0, 0.0, 0.0).collect();
         assert!(raw[last] - f[last] < 0.4 * 0.25, "{}", raw[last] - f[last]);
     }
 }

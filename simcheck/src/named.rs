@@ -61,6 +61,7 @@ pub fn effect_params(
                     p.insert("bouc_wen".into(), 1.0);
                     p.insert("saturation_n".into(), r);
                     p.insert("exponent".into(), cfg.hyst_bw_n);
+                    p.insert("asymmetry".into(), cfg.hyst_bw_asym);
                 } else {
                     p.insert("threshold_n".into(), r);
                     p.insert("mix".into(), cfg.hyst_mix);

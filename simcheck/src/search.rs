@@ -17,6 +17,7 @@ pub enum Param {
     HystMix,
     HystShare,
     HystLnN,
+    HystAsym,
     PreisMu,
     PreisLnSigma,
     ThermAlpha,
@@ -43,6 +44,7 @@ impl Param {
             Param::HystMix => c.hyst_mix,
             Param::HystShare => c.hyst_share.unwrap_or(0.0),
             Param::HystLnN => c.hyst_bw_n.ln(),
+            Param::HystAsym => c.hyst_bw_asym,
             Param::PreisMu => c.preis_mu,
             Param::PreisLnSigma => c.preis_sigma.max(1e-9).ln(),
             Param::ThermAlpha => match &c.thermal {
@@ -87,6 +89,7 @@ impl Param {
                 }
             }
             Param::HystLnN => c.hyst_bw_n = v.clamp(0.5f64.ln(), 4f64.ln()).exp(),
+            Param::HystAsym => c.hyst_bw_asym = v.clamp(-0.9, 0.9),
             Param::PreisMu => c.preis_mu = v.clamp(-50.0, 500.0),
             Param::PreisLnSigma => c.preis_sigma = v.clamp(-8.0, 8.0).exp(),
             Param::ThermAlpha => {
@@ -113,6 +116,7 @@ impl Param {
             Param::ThermAlpha => 0.1,
             Param::HystShare => 0.1,
             Param::HystLnN => 0.3,
+            Param::HystAsym => 0.3,
             Param::PreisMu => 1.0,
             Param::CurvBeta => 0.5,
             Param::LnExponent => 0.05,
@@ -296,11 +300,11 @@ pub fn all_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
         if cfg.hyst_preisach {
             p.extend([Param::PreisMu, Param::PreisLnSigma]);
         } else {
-            p.push(if cfg.hyst_bouc_wen {
-                Param::HystLnN
+            if cfg.hyst_bouc_wen {
+                p.extend([Param::HystLnN, Param::HystAsym]);
             } else {
-                Param::HystMix
-            });
+                p.push(Param::HystMix);
+            }
         }
         if cfg.hyst_share.is_some() {
             p.push(Param::HystShare);

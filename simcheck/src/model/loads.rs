@@ -102,7 +102,15 @@ impl Loads {
                     return grid.series(relays.load(&grid.force, share, sc), cfg, tau_max);
                 }
                 if let Some(knee) = &knee {
-                    let f = bouc_wen_load(&grid.force, r, knee, share, sc, ctx.force_deadband);
+                    let f = bouc_wen_load(
+                        &grid.force,
+                        r,
+                        knee,
+                        share,
+                        sc,
+                        ctx.force_deadband,
+                        cfg.hyst_bw_asym,
+                    );
                     return grid.series(f, cfg, tau_max);
                 }
                 // The two play operators of `play_gap`, run inline (no temporary series).
