@@ -202,7 +202,14 @@ pub fn diagnose_with(
             };
             NamedEffect {
                 name: e.name().to_string(),
-                params: effect_params(ds, &sim_cfg, e, &sim_theta),
+                params: {
+                    let mut p = effect_params(ds, &sim_cfg, e, &sim_theta);
+                    // The asymmetry the tool fitted (SIM.toml's symmetric loop has none).
+                    if e == EffectKind::Hysteresis && cur.hyst_bouc_wen {
+                        p.insert("asymmetry".into(), cur.hyst_bw_asym);
+                    }
+                    p
+                },
                 evidence: ev,
                 heldout_rmse_before: rb,
                 heldout_rmse_after: ra,
@@ -283,25 +290,30 @@ fn law_of(cfg: &Config) -> usize {
 /// is the power law; else the same effects with the power law's exponent (and the floor, when
 /// the model has one) fitted on the whole recording (the effects' parameters kept), and its
 /// per-node parameters.
+/// An asymmetric Bouc-Wen loop is refitted symmetric (its saturation, exponent and share), the
+/// only Bouc-Wen taxel-sim runs; report.json keeps the asymmetry the tool fitted.
 fn power_summary(
     ctx: &Context,
     cur: &Config,
     ev: &crate::model::Eval,
     ev_n: usize,
 ) -> (Config, Vec<Vec<f64>>) {
-    if cur.law == Law::Power {
+    let asymmetric = cur.hyst_bouc_wen && cur.hyst_bw_asym != 0.0;
+    if cur.law == Law::Power && !asymmetric {
         return (cur.clone(), ev.theta.clone());
     }
     let power = Config {
         law: Law::Power,
+        hyst_bw_asym: 0.0,
         ..cur.clone()
     };
-    let fitted = fit_all(
-        ctx,
-        std::slice::from_ref(&power),
-        &base_params(&power),
-        ev_n,
-    );
+    let mut params = base_params(&power);
+    if asymmetric {
+        // taxel-sim's Bouc-Wen is symmetric: its saturation, exponent and share refitted so.
+        params.extend([Param::HystLnR, Param::HystLnN, Param::HystShare]);
+    }
+    let evals = if asymmetric { 3 * ev_n } else { ev_n };
+    let fitted = fit_all(ctx, std::slice::from_ref(&power), &params, evals);
     let theta = evaluate(ctx, &fitted, &|_| true).theta;
     (fitted, theta)
 }
