@@ -273,9 +273,7 @@ struct Side {
 impl Side {
     fn new(curve: &Calibration, flat: Option<&Calibration>) -> Side {
         let wrap = |c: &Calibration| Calibrator::for_calibration(c.clone(), f64::INFINITY);
-        let dynamic = std::iter::once(&curve.array)
-            .chain(&curve.blocks)
-            .any(|b| b.creep.is_some());
+        let dynamic = curve.all_blocks().any(|b| !b.dynamics.is_static());
         Side {
             curve: wrap(curve),
             flat: flat.map(wrap),

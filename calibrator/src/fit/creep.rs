@@ -9,7 +9,7 @@ use taxel_formats::Recording;
 
 use super::observe::{observations, Baselines, Observation};
 use crate::calibration::{Block, Calibration, CalibrationFile};
-use crate::dynamics::{lag_step, Creep, CreepSpec, MAX_TERMS, MAX_TOTAL_SHARE};
+use crate::dynamics::{lag_step, Creep, CreepSpec, Domain, MAX_TERMS, MAX_TOTAL_SHARE};
 
 /// Candidate time constants (s): log-spaced from a tap to a long hold.
 pub const TAU_GRID_S: [f64; 5] = [0.5, 2.0, 8.0, 32.0, 128.0];
@@ -157,6 +157,7 @@ fn spec_of(a: &[f64]) -> Option<CreepSpec> {
     (!keep.is_empty()).then(|| CreepSpec {
         tau_s: keep.iter().map(|&i| TAU_GRID_S[i]).collect(),
         share: keep.iter().map(|&i| a[i]).collect(),
+        domain: Domain::Reading,
     })
 }
 
@@ -314,6 +315,7 @@ mod tests {
             &CreepSpec {
                 tau_s: vec![2.0, 32.0],
                 share: vec![0.1, 0.25],
+                domain: Domain::Reading,
             },
         )
         .expect("valid");

@@ -369,6 +369,7 @@ fn fit_block(
             model: spec,
             range,
             creep: None,
+            hysteresis: None,
         },
         form,
     ))

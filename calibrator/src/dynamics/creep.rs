@@ -1,20 +1,18 @@
-//! Dynamic terms of a calibration block: creep under a held load and its recovery after
-//! unloading, applied to the block's reading S before the static model.
+//! Creep of a block under a held load, and its recovery after unloading.
 //!
-//! Model: the measured reading is the instantaneous one plus creep parts, each a first-order
-//! lag of the instantaneous reading,
-//! `S = S_e + sum_i a_i x_i`, `dx_i/dt = (S_e - x_i) / tau_i`.
-//! Under a load held from t = 0 the reading climbs as `S_e (1 + sum_i a_i (1 - exp(-t/tau_i)))`
+//! Model: the measured quantity is the instantaneous one plus creep parts, each a first-order
+//! lag of the instantaneous quantity,
+//! `y = y_e + sum_i a_i x_i`, `dx_i/dt = (y_e - x_i) / tau_i`.
+//! The quantity is the block's reading S (`domain = "reading"`, the default) or the force the
+//! static model reports for it (`domain = "force"`: the load itself creeps, as when the
+//! material's strain does; under a saturating static law the two differ at high loads).
+//! Under a load held from t = 0 the quantity climbs as `y_e (1 + sum_i a_i (1 - exp(-t/tau_i)))`
 //! (several time constants cover a log-time law over their span); after unloading each part
 //! decays with its own time constant (recovery: the unloaded reading is elevated and relaxes).
-//! The calibrator inverts it causally, frame by frame: `S_e = S - sum_i a_i x_i` with the
-//! states of the previous frame, then each state takes the step `x += dt / (tau + dt) (S_e -
+//! The calibrator inverts it causally, frame by frame: `y_e = y - sum_i a_i x_i` with the
+//! states of the previous frame, then each state takes the step `x += dt / (tau + dt) (y_e -
 //! x)`. With `a_i >= 0` and `sum a_i < 1` this is stable for every frame interval, and a
-//! constant reading settles at `S_e = S / (1 + sum a_i)`: no file can make the force run away.
-//!
-//! The states live in the calibrator process (one set per block, no allocation per frame); they
-//! start at zero (a sensor that has rested), so a calibrator started under load reports the
-//! creep it cannot know about until the states have settled (about the largest time constant).
+//! constant input settles at `y_e = y / (1 + sum a_i)`: no file can make the force run away.
 
 use serde::{Deserialize, Serialize};
 
@@ -31,20 +29,48 @@ pub fn lag_step(x: &mut f64, target: f64, dt_s: f64, tau_s: f64) {
     *x += dt / (tau_s + dt) * (target - *x);
 }
 
+/// What creeps: the block's reading or the force the static model reports for it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Domain {
+    /// The reading S (counts of the block's signal), before the static model.
+    #[default]
+    Reading,
+    /// The force (N) the static model reports, after it.
+    Force,
+}
+
+impl Domain {
+    pub fn name(self) -> &'static str {
+        match self {
+            Domain::Reading => "reading",
+            Domain::Force => "force",
+        }
+    }
+}
+
+fn is_reading(d: &Domain) -> bool {
+    *d == Domain::Reading
+}
+
 /// Creep of a block, as written in a calibration file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CreepSpec {
     /// Time constants (s), strictly increasing.
     pub tau_s: Vec<f64>,
-    /// Share of the instantaneous reading each part adds once settled (no unit; each >= 0,
+    /// Share of the instantaneous quantity each part adds once settled (no unit; each >= 0,
     /// their sum below 0.9).
     pub share: Vec<f64>,
+    /// What creeps (default: the reading).
+    #[serde(default, skip_serializing_if = "is_reading")]
+    pub domain: Domain,
 }
 
 /// Validated creep of a block.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Creep {
+    pub domain: Domain,
     n: usize,
     tau_s: [f64; MAX_TERMS],
     share: [f64; MAX_TERMS],
@@ -87,6 +113,7 @@ impl Creep {
             ));
         }
         let mut c = Creep {
+            domain: spec.domain,
             n,
             tau_s: [0.0; MAX_TERMS],
             share: [0.0; MAX_TERMS],
@@ -106,20 +133,46 @@ impl Creep {
         CreepSpec {
             tau_s: self.tau_s[..self.n].to_vec(),
             share: self.share[..self.n].to_vec(),
+            domain: self.domain,
         }
+    }
+
+    /// What the creep parts add now, `sum_i a_i x_i` (the measured quantity beyond the
+    /// instantaneous one if it were read now).
+    #[inline]
+    pub fn excess(&self, state: &CreepState) -> f64 {
+        let n = self.n;
+        self.share[..n]
+            .iter()
+            .zip(&state[..n])
+            .map(|(a, x)| a * x)
+            .sum()
+    }
+
+    /// Sets the states so that they add `excess` now, spread evenly over the parts (a reload:
+    /// the new terms continue from the old terms' excess, so the force does not jump).
+    pub fn set_excess(&self, state: &mut CreepState, excess: f64) {
+        let total: f64 = self.share[..self.n].iter().sum();
+        let x = if total > 0.0 && excess.is_finite() {
+            excess / total
+        } else {
+            0.0
+        };
+        state.fill(0.0);
+        state[..self.n].fill(x);
     }
 
     /// The instantaneous reading of measured reading `s` (from the states as they stand), then
     /// the states advanced by `dt_s`, the time to the next frame as far as it is known (the
     /// calibrator uses the interval since the previous frame, which a steady stream repeats).
+    /// A value that is not finite (no baseline yet) passes through and leaves the states alone.
     #[inline]
     pub fn step(&self, state: &mut CreepState, s: f64, dt_s: f64) -> f64 {
+        if !s.is_finite() {
+            return s;
+        }
         let n = self.n;
-        let se = s - self.share[..n]
-            .iter()
-            .zip(&state[..n])
-            .map(|(a, x)| a * x)
-            .sum::<f64>();
+        let se = s - self.excess(state);
         for (x, tau) in state[..n].iter_mut().zip(&self.tau_s[..n]) {
             lag_step(x, se, dt_s, *tau);
         }
@@ -138,14 +191,8 @@ impl Creep {
             } else {
                 0.0
             };
-            let n = self.n;
-            let creep: f64 = self.share[..n]
-                .iter()
-                .zip(&state[..n])
-                .map(|(a, x)| a * x)
-                .sum();
-            out.push(e + creep);
-            for (x, tau) in state[..n].iter_mut().zip(&self.tau_s[..n]) {
+            out.push(e + self.excess(&state));
+            for (x, tau) in state[..self.n].iter_mut().zip(&self.tau_s[..self.n]) {
                 lag_step(x, e, dt, *tau);
             }
         }
@@ -163,6 +210,7 @@ mod tests {
             &CreepSpec {
                 tau_s: tau.to_vec(),
                 share: share.to_vec(),
+                domain: Domain::Reading,
             },
         )
     }
@@ -229,7 +277,10 @@ mod tests {
             &file("creep = { tau_s = [2, 30], share = [0.1, 0.2] }"),
         )
         .expect("valid");
-        assert_eq!(ok.array.creep.map(|c| c.spec().share), Some(vec![0.1, 0.2]));
+        assert_eq!(
+            ok.array.dynamics.creep.map(|c| c.spec().share),
+            Some(vec![0.1, 0.2])
+        );
         let e = crate::calibration::Calibration::from_toml_str(
             "c.toml",
             &file("creep = { tau_s = [2, 30], share = [0.5, 0.45] }"),
