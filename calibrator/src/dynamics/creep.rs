@@ -65,12 +65,23 @@ pub struct CreepSpec {
     /// What creeps (default: the reading).
     #[serde(default, skip_serializing_if = "is_reading")]
     pub domain: Domain,
+    /// Force domain only: each part adds at most its share of the present force, so what crept
+    /// goes when the load goes (`min(x_i, F)`: no slow recovery at rest, as when the creep is
+    /// in conduction paths that open with the load). Default false: the parts recover with
+    /// their time constants.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub bounded: bool,
+}
+
+fn is_false(v: &bool) -> bool {
+    !*v
 }
 
 /// Validated creep of a block.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Creep {
     pub domain: Domain,
+    pub bounded: bool,
     n: usize,
     tau_s: [f64; MAX_TERMS],
     share: [f64; MAX_TERMS],
@@ -112,8 +123,14 @@ impl Creep {
                 "block {block:?}: creep shares sum to {total:.3}; at most {MAX_TOTAL_SHARE} keeps the correction stable"
             ));
         }
+        if spec.bounded && spec.domain != Domain::Force {
+            return Err(format!(
+                "block {block:?}: creep bounded = true needs domain = \"force\""
+            ));
+        }
         let mut c = Creep {
             domain: spec.domain,
+            bounded: spec.bounded,
             n,
             tau_s: [0.0; MAX_TERMS],
             share: [0.0; MAX_TERMS],
@@ -134,19 +151,61 @@ impl Creep {
             tau_s: self.tau_s[..self.n].to_vec(),
             share: self.share[..self.n].to_vec(),
             domain: self.domain,
+            bounded: self.bounded,
         }
     }
 
-    /// What the creep parts add now, `sum_i a_i x_i` (the measured quantity beyond the
-    /// instantaneous one if it were read now).
+    /// What the creep parts add to an instantaneous value `v` read now: `sum_i a_i x_i`, or
+    /// `sum_i a_i min(x_i, v)` when bounded by the load.
     #[inline]
-    pub fn excess(&self, state: &CreepState) -> f64 {
+    pub fn excess_at(&self, state: &CreepState, v: f64) -> f64 {
         let n = self.n;
-        self.share[..n]
-            .iter()
-            .zip(&state[..n])
-            .map(|(a, x)| a * x)
-            .sum()
+        let parts = self.share[..n].iter().zip(&state[..n]);
+        if self.bounded {
+            parts.map(|(a, x)| a * x.min(v)).sum()
+        } else {
+            parts.map(|(a, x)| a * x).sum()
+        }
+    }
+
+    /// The instantaneous value whose measured value is `y` (states as they stand). Bounded,
+    /// `g(v) = v + sum_i a_i min(x_i, v)` is piecewise linear with slope >= 1, so the root lies
+    /// between `y` and `y - (g(y) - y)`; Newton steps, exact on a linear piece, bisection when a
+    /// step leaves that bracket.
+    #[inline]
+    fn instantaneous(&self, state: &CreepState, y: f64) -> f64 {
+        if !self.bounded {
+            return y - self.excess_at(state, f64::INFINITY);
+        }
+        let e = self.excess_at(state, y);
+        let (mut lo, mut hi) = if e >= 0.0 { (y - e, y) } else { (y, y - e) };
+        let tol = 1e-12 * (1.0 + y.abs() + e.abs());
+        let mut v = 0.5 * (lo + hi);
+        for _ in 0..64 {
+            let err = v + self.excess_at(state, v) - y;
+            if err.abs() <= tol {
+                break;
+            }
+            if err > 0.0 {
+                hi = v;
+            } else {
+                lo = v;
+            }
+            let slope = 1.0
+                + self.share[..self.n]
+                    .iter()
+                    .zip(&state[..self.n])
+                    .filter(|(_, x)| **x > v)
+                    .map(|(a, _)| a)
+                    .sum::<f64>();
+            let next = v - err / slope;
+            v = if next > lo && next < hi {
+                next
+            } else {
+                0.5 * (lo + hi)
+            };
+        }
+        v
     }
 
     /// Sets the states so that they add `excess` now, spread evenly over the parts (a reload:
@@ -172,7 +231,7 @@ impl Creep {
             return s;
         }
         let n = self.n;
-        let se = s - self.excess(state);
+        let se = self.instantaneous(state, s);
         for (x, tau) in state[..n].iter_mut().zip(&self.tau_s[..n]) {
             lag_step(x, se, dt_s, *tau);
         }
@@ -191,7 +250,7 @@ impl Creep {
             } else {
                 0.0
             };
-            out.push(e + self.excess(&state));
+            out.push(e + self.excess_at(&state, e));
             for (x, tau) in state[..self.n].iter_mut().zip(&self.tau_s[..self.n]) {
                 lag_step(x, e, dt, *tau);
             }
@@ -211,6 +270,7 @@ mod tests {
                 tau_s: tau.to_vec(),
                 share: share.to_vec(),
                 domain: Domain::Reading,
+                bounded: false,
             },
         )
     }
@@ -238,6 +298,47 @@ mod tests {
                 se[k]
             );
         }
+    }
+
+    #[test]
+    fn bounded_creep_goes_with_the_load_and_is_inverted_exactly() {
+        let c = Creep::from_spec(
+            "b",
+            &CreepSpec {
+                tau_s: vec![2.0, 20.0],
+                share: vec![0.1, 0.2],
+                domain: Domain::Force,
+                bounded: true,
+            },
+        )
+        .expect("valid");
+        let t: Vec<f64> = (0..6000).map(|i| i as f64 * 0.01).collect();
+        // A 30 s hold at 5 N, a partial unload to 2 N, then unloaded.
+        let f: Vec<f64> = t
+            .iter()
+            .map(|&t| match t {
+                t if (1.0..31.0).contains(&t) => 5.0,
+                t if (31.0..40.0).contains(&t) => 2.0,
+                _ => 0.0,
+            })
+            .collect();
+        let measured = c.forward(&t, &f);
+        assert!(measured[3000] > 5.0 * 1.2, "{}", measured[3000]);
+        // Partly unloaded, the excess is at most its share of the present load...
+        assert!(measured[3200] <= 2.0 * 1.3 + 1e-12, "{}", measured[3200]);
+        // ...and unloaded there is none left (no slow recovery at rest).
+        assert_eq!(measured[4200], 0.0);
+        let mut state = [0.0; MAX_TERMS];
+        for (k, &m) in measured.iter().enumerate() {
+            let e = c.step(&mut state, m, 0.01);
+            assert!((e - f[k]).abs() < 1e-9, "frame {k}: {e} vs {}", f[k]);
+        }
+        let reading = CreepSpec {
+            domain: Domain::Reading,
+            ..c.spec()
+        };
+        let e = Creep::from_spec("b", &reading).expect_err("bounded needs the force");
+        assert!(e.contains("domain = \"force\""), "{e}");
     }
 
     #[test]

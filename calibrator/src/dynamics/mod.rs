@@ -110,11 +110,11 @@ impl State {
         let d = &b.dynamics;
         let mut f = d.hysteresis.map_or(0.0, |h| h.excess_at(&self.plays, 0.0));
         if let Some(cr) = d.creep_in(Domain::Force) {
-            f += cr.excess(&self.creep);
+            f += cr.excess_at(&self.creep, f);
         }
         let mut s = b.reading_for(f, c) - b.reading_for(0.0, c);
         if let Some(cr) = d.creep_in(Domain::Reading) {
-            s += cr.excess(&self.creep);
+            s += cr.excess_at(&self.creep, 0.0);
         }
         if s.is_finite() {
             s
@@ -142,7 +142,9 @@ impl State {
         let (o, n) = (&old.dynamics, &new.dynamics);
         match (o.creep, n.creep) {
             (Some(a), Some(b)) if a.domain == b.domain => {
-                let excess = a.excess(&self.creep);
+                // The force domain's value at the last frame is the last force (before its
+                // hysteresis, near enough); the reading domain is never bounded.
+                let excess = a.excess_at(&self.creep, self.last_force_n);
                 b.set_excess(&mut self.creep, excess);
             }
             _ => self.creep = [0.0; MAX_TERMS],
