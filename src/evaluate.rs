@@ -49,6 +49,23 @@ pub enum Evaluate {
         #[arg(long)]
         json: bool,
     },
+    /// Dynamic calibration (creep, hysteresis) on every simulator family with hold-out seeds and
+    /// on world B: the paper's objects held 15 s at 2-8 N in a warming hand, calibrated with and
+    /// without the dynamic terms fitted on one characterisation recording (dynamics.md).
+    Dynamics {
+        /// Output directory.
+        #[arg(long, default_value = "dynamics")]
+        out: PathBuf,
+        /// Simulator families (taxel-sim presets), comma separated.
+        #[arg(long, value_delimiter = ',', default_values_t = taxel_calibrator::worlds::FAMILIES.map(String::from))]
+        families: Vec<String>,
+        /// Seeds of each family (default: the hold-out seeds, never tuned on), comma separated.
+        #[arg(long, value_delimiter = ',', default_values_t = taxel_calibrator::worlds::HOLDOUT_SEEDS)]
+        seeds: Vec<u64>,
+        /// Folder holding worldb/ (skipped with a note when absent).
+        #[arg(long, default_value = "../shared/data")]
+        shared: PathBuf,
+    },
 }
 
 pub fn main(e: Evaluate) -> ExitCode {
@@ -90,7 +107,49 @@ fn run(e: Evaluate) -> anyhow::Result<()> {
             },
             json,
         ),
+        Evaluate::Dynamics {
+            out,
+            families,
+            seeds,
+            shared,
+        } => dynamics(taxel_calibrator::worlds::Options {
+            out,
+            families,
+            seeds,
+            shared: Some(shared),
+            epochs: 1,
+        }),
     }
+}
+
+fn dynamics(o: taxel_calibrator::worlds::Options) -> anyhow::Result<()> {
+    use taxel_calibrator::worlds;
+    let mut bar = taxel_runtime::progress::Progress::new("dynamics", 1);
+    let t0 = std::time::Instant::now();
+    let s = worlds::run_dynamics(&o, |done, total, what| {
+        bar.set_total(total as u64);
+        bar.set(done as u64);
+        tracing::info!("dynamics: {what} ({:.0} s)", t0.elapsed().as_secs_f64());
+    })?;
+    bar.finish();
+    for r in &s.rows {
+        println!(
+            "| {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {} |",
+            r.world,
+            r.seed.map_or("-".into(), |s| s.to_string()),
+            r.static_n,
+            r.dynamic_n,
+            r.worst_n,
+            r.static_drift_n,
+            r.drift_n,
+            r.terms
+        );
+    }
+    for k in &s.skipped {
+        println!("{k}");
+    }
+    println!("done in {:.0} s", t0.elapsed().as_secs_f64());
+    Ok(())
 }
 
 fn worlds(o: taxel_calibrator::worlds::Options, json: bool) -> anyhow::Result<()> {
