@@ -180,7 +180,8 @@ impl Creep {
         let e = self.excess_at(state, y);
         let (mut lo, mut hi) = if e >= 0.0 { (y - e, y) } else { (y, y - e) };
         let tol = 1e-12 * (1.0 + y.abs() + e.abs());
-        let mut v = 0.5 * (lo + hi);
+        // Exact while every part lags below the load (a rising or held load).
+        let mut v = y - e;
         for _ in 0..64 {
             let err = v + self.excess_at(state, v) - y;
             if err.abs() <= tol {
@@ -195,15 +196,11 @@ impl Creep {
                 + self.share[..self.n]
                     .iter()
                     .zip(&state[..self.n])
-                    .filter(|(_, x)| **x > v)
-                    .map(|(a, _)| a)
+                    .map(|(a, x)| a * f64::from(u8::from(*x > v)))
                     .sum::<f64>();
-            let next = v - err / slope;
-            v = if next > lo && next < hi {
-                next
-            } else {
-                0.5 * (lo + hi)
-            };
+            // A Newton step kept in the bracket; bisection when that makes no progress.
+            let next = (v - err / slope).clamp(lo, hi);
+            v = if next != v { next } else { 0.5 * (lo + hi) };
         }
         v
     }

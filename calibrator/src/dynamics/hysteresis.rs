@@ -41,6 +41,8 @@ pub struct Hysteresis {
     n: usize,
     r: [f64; MAX_PLAYS],
     w: [f64; MAX_PLAYS],
+    /// `sum_j |w_j| r_j`.
+    bound: f64,
 }
 
 /// Per-block play states (N).
@@ -89,9 +91,16 @@ impl Hysteresis {
             n,
             r: [0.0; MAX_PLAYS],
             w: [0.0; MAX_PLAYS],
+            bound: 0.0,
         };
         h.r[..n].copy_from_slice(&spec.threshold_n);
         h.w[..n].copy_from_slice(&spec.weight);
+        h.bound = spec
+            .threshold_n
+            .iter()
+            .zip(&spec.weight)
+            .map(|(r, w)| r * w.abs())
+            .sum();
         Ok(h)
     }
 
@@ -110,14 +119,11 @@ impl Hysteresis {
 
     /// Largest change of the reported force the plays can make, `sum_j |w_j| r_j` (N).
     pub fn bound_n(&self) -> f64 {
-        self.r[..self.n]
-            .iter()
-            .zip(&self.w[..self.n])
-            .map(|(r, w)| r * w.abs())
-            .sum()
+        self.bound
     }
 
-    /// `g(f)` for the states as they stand, and its slope there.
+    /// `g(f)` for the states as they stand, and its slope there (branch-free: the clamp is a
+    /// min and a max, a play is stuck when the clamp leaves it where it is).
     #[inline]
     fn g(&self, p: &PlayState, f: f64) -> (f64, f64) {
         let (mut v, mut slope) = (f, 1.0);
@@ -126,14 +132,9 @@ impl Hysteresis {
             .zip(&self.w[..self.n])
             .zip(&p[..self.n])
         {
-            if q < f - r {
-                v -= w * r;
-            } else if q > f + r {
-                v += w * r;
-            } else {
-                v += w * (q - f);
-                slope -= w;
-            }
+            let c = q.max(f - r).min(f + r);
+            v += w * (c - f);
+            slope -= w * f64::from(u8::from(c == q));
         }
         (v, slope)
     }
@@ -161,17 +162,24 @@ impl Hysteresis {
         self.g(p, f).0 - f
     }
 
-    /// The true force whose reported force is `y`, advancing the states. A value that is not
-    /// finite passes through and leaves the states alone.
+    /// The true force whose reported force is `y`, advancing the states; `excess` is what the
+    /// plays added at the previous frame, the first guess of what they add now (exact while
+    /// every play keeps moving or every play stays put). A value that is not finite passes
+    /// through and leaves the states alone.
     #[inline]
-    pub fn invert(&self, p: &mut PlayState, y: f64) -> f64 {
+    pub fn invert(&self, p: &mut PlayState, y: f64, excess: f64) -> f64 {
         if !y.is_finite() {
             return y;
         }
         let bound = self.bound_n();
         let (mut lo, mut hi) = (y - bound, y + bound);
         let tol = 1e-12 * (1.0 + y.abs() + bound);
-        let mut f = y;
+        let guess = y - excess;
+        let mut f = if guess.is_finite() {
+            guess.clamp(lo, hi)
+        } else {
+            y
+        };
         for _ in 0..64 {
             let (v, slope) = self.g(p, f);
             let e = v - y;
@@ -183,12 +191,11 @@ impl Hysteresis {
             } else {
                 lo = f;
             }
-            let next = f - e / slope;
-            f = if next > lo && next < hi {
-                next
-            } else {
-                0.5 * (lo + hi)
-            };
+            // A Newton step, kept in the bracket (its ends are candidates: with every play
+            // moving the root is one, and rounding may step a hair past it); bisection when
+            // that makes no progress.
+            let next = (f - e / slope).clamp(lo, hi);
+            f = if next != f { next } else { 0.5 * (lo + hi) };
         }
         self.advance(p, f);
         f
@@ -273,7 +280,7 @@ mod tests {
             f.extend([3.0, 3.0, 7.5, 0.0, 0.0, 4.2]);
             for (k, &v) in f.iter().enumerate() {
                 let y = h.forward(&mut pf, v);
-                let back = h.invert(&mut pi, y);
+                let back = h.invert(&mut pi, y, 0.0);
                 assert!((back - v).abs() < 1e-9, "{r:?} frame {k}: {back} vs {v}");
                 let apart = pf
                     .iter()
@@ -289,9 +296,9 @@ mod tests {
     fn a_value_that_is_not_finite_leaves_the_states_alone() {
         let h = hyst(&[0.5], &[0.3]).expect("valid");
         let mut p = [0.0; MAX_PLAYS];
-        h.invert(&mut p, 4.0);
+        h.invert(&mut p, 4.0, 0.0);
         let before = p;
-        assert!(h.invert(&mut p, f64::NAN).is_nan());
+        assert!(h.invert(&mut p, f64::NAN, 0.0).is_nan());
         assert_eq!(p, before);
     }
 

@@ -58,6 +58,8 @@ pub struct State {
     pub credit: f64,
     /// The force of the last frame (N), as corrected.
     pub last_force_n: f64,
+    /// What the hysteresis added to it at the last frame (N).
+    last_excess_n: f64,
     /// Lowest and highest force since the states started (N): a play is known once the force
     /// has swept twice its half-width in one direction.
     sweep: [f64; 2],
@@ -76,6 +78,7 @@ impl State {
         plays: [0.0; MAX_PLAYS],
         credit: 0.0,
         last_force_n: 0.0,
+        last_excess_n: 0.0,
         sweep: [f64::INFINITY, f64::NEG_INFINITY],
     };
 
@@ -95,7 +98,11 @@ impl State {
             e.force_n = cr.step(&mut self.creep, e.force_n, dt_s);
         }
         if let Some(h) = &d.hysteresis {
-            e.force_n = h.invert(&mut self.plays, e.force_n);
+            let reported = e.force_n;
+            e.force_n = h.invert(&mut self.plays, reported, self.last_excess_n);
+            if e.force_n.is_finite() {
+                self.last_excess_n = reported - e.force_n;
+            }
         }
         if e.force_n.is_finite() {
             self.last_force_n = e.force_n;
