@@ -132,23 +132,20 @@ fn dynamics(o: taxel_calibrator::worlds::Options) -> anyhow::Result<()> {
         tracing::info!("dynamics: {what} ({:.0} s)", t0.elapsed().as_secs_f64());
     })?;
     bar.finish();
-    for r in &s.rows {
-        println!(
-            "| {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {} |",
-            r.world,
-            r.seed.map_or("-".into(), |s| s.to_string()),
-            r.static_n,
-            r.dynamic_n,
-            r.worst_n,
-            r.static_drift_n,
-            r.drift_n,
-            r.terms
-        );
+    let command = std::env::args().collect::<Vec<_>>().join(" ");
+    let md = worlds::dynamics_markdown(&s, &command);
+    let js = worlds::dynamics_json(&s);
+    for (name, text) in [("dynamics.md", &md), ("dynamics.json", &js)] {
+        let p = o.out.join(name);
+        std::fs::write(&p, format!("{text}\n"))
+            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
     }
-    for k in &s.skipped {
-        println!("{k}");
-    }
-    println!("done in {:.0} s", t0.elapsed().as_secs_f64());
+    println!("{md}");
+    println!(
+        "done in {:.0} s; report: {}",
+        t0.elapsed().as_secs_f64(),
+        o.out.join("dynamics.md").display()
+    );
     Ok(())
 }
 
