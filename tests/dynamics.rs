@@ -217,3 +217,66 @@ fn terms_taken_from_a_simulator_model_do_the_same() {
     assert!(err.contains("neither creep nor hysteresis"), "{err}");
     assert!(!none.exists());
 }
+
+#[test]
+fn evaluate_dynamics_reports_every_world_with_and_without_the_terms() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("dyn");
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    let (code, stdout, err) = run(
+        "dynw",
+        &[
+            "evaluate",
+            "dynamics",
+            "--families",
+            "zoo-pow",
+            "--seeds",
+            "101",
+            "--shared",
+            &shared.display().to_string(),
+            "--out",
+            &out.display().to_string(),
+        ],
+    );
+    assert_eq!(code, 0, "{err}");
+    assert!(stdout.contains("| zoo-pow | 101 |"), "{stdout}");
+    let text = std::fs::read_to_string(out.join("dynamics.json")).expect("json written");
+    let v: serde_json::Value = serde_json::from_str(&text).expect("json");
+    let rows = v["worlds"].as_array().expect("worlds");
+    let zoo = rows
+        .iter()
+        .find(|r| r["world"] == "zoo-pow")
+        .expect("the family's row");
+    // A creeping, hysteretic sensor in a warming hand: the terms fitted on one
+    // characterisation recording lower the objects' error and take most drift out of holds.
+    assert!(f(&zoo["dynamic_n"]) < 0.8 * f(&zoo["static_n"]), "{zoo}");
+    assert!(
+        f(&zoo["drift_n"]) < f(&zoo["static_drift_n"]) / 3.0,
+        "{zoo}"
+    );
+    if !shared.join("worldb").is_dir() {
+        eprintln!(
+            "skipped: {} absent, world B and real rows not checked",
+            shared.display()
+        );
+        return;
+    }
+    let b = rows
+        .iter()
+        .find(|r| r["world"] == "world B")
+        .expect("world B's row");
+    assert!(f(&b["dynamic_n"]) < f(&b["static_n"]), "{b}");
+    let real = v["real"].as_array().expect("real");
+    assert_eq!(
+        real.len(),
+        8,
+        "six TAMS files and two Lupasic protocols: {real:?}"
+    );
+    // Where no term was written the prediction is the static one.
+    for r in real {
+        let terms = r["terms"].as_str().unwrap_or("");
+        if terms.contains("none written") {
+            assert_eq!(r["static_rel"], r["dynamic_rel"], "{r}");
+        }
+    }
+}

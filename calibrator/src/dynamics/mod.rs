@@ -60,6 +60,8 @@ pub struct State {
     pub last_force_n: f64,
     /// What the hysteresis added to it at the last frame (N).
     last_excess_n: f64,
+    /// The creep's instantaneous value at the last frame (its domain's units).
+    last_creep_value: f64,
     /// Lowest and highest force since the states started (N): a play is known once the force
     /// has swept twice its half-width in one direction.
     sweep: [f64; 2],
@@ -79,6 +81,7 @@ impl State {
         credit: 0.0,
         last_force_n: 0.0,
         last_excess_n: 0.0,
+        last_creep_value: 0.0,
         sweep: [f64::INFINITY, f64::NEG_INFINITY],
     };
 
@@ -90,12 +93,17 @@ impl State {
         let d = &b.dynamics;
         let s = s + self.credit;
         let se = match d.creep_in(Domain::Reading) {
-            Some(cr) => cr.step(&mut self.creep, s, dt_s),
+            Some(cr) => {
+                let v = cr.step(&mut self.creep, s, dt_s);
+                self.last_creep_value = v;
+                v
+            }
             None => s,
         };
         let mut e = b.evaluate(se, c);
         if let Some(cr) = d.creep_in(Domain::Force) {
             e.force_n = cr.step(&mut self.creep, e.force_n, dt_s);
+            self.last_creep_value = e.force_n;
         }
         if let Some(h) = &d.hysteresis {
             let reported = e.force_n;
@@ -149,9 +157,7 @@ impl State {
         let (o, n) = (&old.dynamics, &new.dynamics);
         match (o.creep, n.creep) {
             (Some(a), Some(b)) if a.domain == b.domain => {
-                // The force domain's value at the last frame is the last force (before its
-                // hysteresis, near enough); the reading domain is never bounded.
-                let excess = a.excess_at(&self.creep, self.last_force_n);
+                let excess = a.excess_at(&self.creep, self.last_creep_value);
                 b.set_excess(&mut self.creep, excess);
             }
             _ => self.creep = [0.0; MAX_TERMS],

@@ -20,7 +20,9 @@ use taxel_formats::readout::{candidates, direction, Direction, ValueShape};
 use taxel_formats::{Readout, ReadoutKind, Recording};
 
 use crate::calibration::{validate_model, BlockSpec, Calibration, CalibrationFile, ModelSpec};
-pub use dynamics::{add_dynamics, Candidate, DynamicsFit, Series, PLAY_GRID, TAU_GRID_S};
+pub use dynamics::{
+    add_dynamics, Candidate, CreepForm, DynamicsFit, Series, PLAY_GRID, TAU_GRID_S,
+};
 pub use monotone::{check_fixture, fit_monotone, fixtures, NonMonotone};
 pub use observe::{observations, trials, Baselines, Observation, TrialBase};
 pub use physics::fit_physics;
@@ -380,8 +382,8 @@ fn fit_block(
 /// The comment at the top of a fitted file.
 pub const FIT_COMMENT: &str = "Fitted by `taxel calibrator fit`. S = block sum of signal(raw) - signal(no-load baseline),\nwhere signal() follows the readout (the raw counts for the paper's amplifier);\nC = curvature in 1/m; F in N. Edit freely: the calibrator validates and hot-reloads it.";
 
-/// Adds dynamic terms (creep, hysteresis) fitted on characterisation recordings to a fitted file's text; returns
-/// the new text and calibration (report lines appended).
+/// Adds dynamic terms (creep, hysteresis) fitted on characterisation recordings `recs` to a
+/// fitted file's text; returns the new text and calibration (report lines appended).
 pub fn with_dynamics(
     text: &str,
     cal: &Calibration,

@@ -4,6 +4,9 @@
 //! - **TAMS** files (loading loops, no time base: the row index is the time): each file's first
 //!   60 % fits the static calibration and the terms, its last 40 % is predicted; relative error
 //!   with and without the terms.
+//!
+//! A prediction runs the whole recording through the calibrator, as live (the states carry the
+//! history of the fitted part), and scores only the predicted part.
 //! - **Lupasic creep run** (a 0.98 N mass held 56.6 s, no unloaded frame): the static
 //!   calibration comes from the six press sessions of the same sensor (`--readout resistance`),
 //!   the terms from the first half of the hold, the second half is predicted; and the terms
@@ -76,15 +79,22 @@ fn rel(f: impl Iterator<Item = f32>, reference: &[f64]) -> f64 {
     }
 }
 
-/// A row from a prediction (`eval --curvature-m1 0 --continues-calibration`).
-fn row(file: &str, protocol: &str, terms: String, test: &Recording, r: &Report) -> RealDynamicRow {
+/// A row from a prediction of `rec` (`eval --curvature-m1 0 --continues-calibration`) scored
+/// from frame `from` on.
+fn row(
+    file: &str,
+    protocol: &str,
+    terms: String,
+    (rec, from): (&Recording, usize),
+    r: &Report,
+) -> RealDynamicRow {
     let b = &r.blocks[0];
-    let reference = test.force_n.as_deref().unwrap_or(&[]);
-    let dynamic = b.forces.iter().map(|f| f.0);
+    let reference = &rec.force_n.as_deref().unwrap_or(&[])[from.min(rec.len())..];
+    let dynamic = b.forces[from.min(b.forces.len())..].iter().map(|f| f.0);
     let statics: Vec<f32> = if b.static_forces.iter().all(|f| f.is_nan()) {
-        b.forces.iter().map(|f| f.0).collect()
+        dynamic.clone().collect()
     } else {
-        b.static_forces.clone()
+        b.static_forces[from.min(b.static_forces.len())..].to_vec()
     };
     RealDynamicRow {
         file: file.to_string(),
@@ -126,7 +136,7 @@ pub fn tams(dir: &Path) -> anyhow::Result<Vec<RealDynamicRow>> {
         let rec = Recording::read(&p)?;
         let name = name_of(&rec);
         let k = (rec.len() as f64 * REAL_TRAIN_SHARE) as usize;
-        let (train, test) = (rec.slice(0..k), rec.slice(k..rec.len()));
+        let train = rec.slice(0..k);
         let opts = FitOptions {
             rows: Some(1),
             cols: Some(rec.n_nodes),
@@ -137,12 +147,12 @@ pub fn tams(dir: &Path) -> anyhow::Result<Vec<RealDynamicRow>> {
             let mut report = Vec::new();
             let (_, dyn_cal) =
                 with_dynamics(&text, &cal, std::slice::from_ref(&train), &mut report)?;
-            let r = predict(&test, &dyn_cal)?;
+            let r = predict(&rec, &dyn_cal)?;
             Ok(row(
                 &name,
                 "first 60 % fits, last 40 % predicted",
                 array_line(&report),
-                &test,
+                (&rec, k),
                 &r,
             ))
         };
@@ -184,18 +194,18 @@ pub fn lupasic(dir: &Path) -> anyhow::Result<Vec<RealDynamicRow>> {
     let (text, cal, _) = fit_calibration(&presses, &opts)?;
     let t_end = creep.t_s.last().copied().unwrap_or(0.0);
     let half = creep.t_s.partition_point(|&t| t < 0.5 * t_end);
-    let (first, second) = (creep.slice(0..half), creep.slice(half..creep.len()));
+    let first = creep.slice(0..half);
     let name = name_of(&creep);
     let mut rows = Vec::new();
     let mut from_half = Vec::new();
     let r = with_dynamics(&text, &cal, std::slice::from_ref(&first), &mut from_half)
-        .and_then(|(_, c)| predict(&second, &c));
+        .and_then(|(_, c)| predict(&creep, &c));
     rows.push(match r {
         Ok(r) => row(
             &name,
             "static from the six press sessions, terms from the first half of the hold, second half predicted",
             array_line(&from_half),
-            &second,
+            (&creep, half),
             &r,
         ),
         Err(e) => failed(&name, e),
@@ -208,7 +218,7 @@ pub fn lupasic(dir: &Path) -> anyhow::Result<Vec<RealDynamicRow>> {
             &name,
             "static and terms from the six press sessions, the whole hold predicted",
             array_line(&from_presses),
-            &creep,
+            (&creep, 0),
             &r,
         ),
         Err(e) => failed(&name, e),

@@ -3,241 +3,95 @@
 //! reports beyond the reference is explained by the history of the load.
 //!
 //! Each candidate is linear in its coefficients once its time constants and play half-widths
-//! are fixed on grids, so it is a non-negative least-squares fit:
-//! - `reading creep`: `S - S_e` on first-order lags of `S_e`, the reading the static model
-//!   needs for the reference force (shares >= 0);
-//! - `force creep`: `F_s - F` on lags of the force (shares >= 0); `bounded force creep` on
-//!   `min(lag, F)` (what crept goes with the load);
-//! - `hysteresis`: `F_s - F` on `play_r(F) - F` for a grid of half-widths (signed weights:
-//!   both signs are columns);
-//! - `force creep + hysteresis` (and bounded): both, the creep lagging the hysteretic force
-//!   (refitted three times, each time with the lags of the force the last fit's plays give).
+//! are fixed on grids (`design`), so it is a non-negative least-squares fit:
+//! - creep of the reading (`S - S_e` on lags of `S_e`, the reading the static model needs for
+//!   the reference force), of the force (`F_s - F` on lags of the force) or bounded by the load
+//!   (on `min(lag, F)`: what crept goes with the load); shares >= 0;
+//! - hysteresis (`F_s - F` on `play_r(F) - F` at a grid of half-widths, one sign);
+//! - force creep (plain or bounded) with hysteresis, the creep lagging the hysteretic force
+//!   (refitted three times with the force the last fit's plays give).
+//!
+//! Tried and left out (measured with `taxel evaluate dynamics`, docs/dynamics.md): creep
+//! relative to the fixtures (the static model holding what settled during their presses)
+//! fits the characterisation data better but acts as a gain that does not carry to other
+//! contacts (world B's objects 0.33 -> 0.78 N, zoo-sat 0.17 -> 0.18 N, the Lupasic hold 4 -> 20 %).
 //!
 //! Every candidate is scored the way the calibrator will use it: the frames run through the
 //! live inverse (`dynamics::State::step`) with states from rest at the start of each file, and
-//! four contiguous time blocks are held out in turn (the terms fitted on the other three). The
-//! best candidate is written only when it lowers the held-out force error on every block, and
-//! by at least 1 % overall.
-//! Each trial's readings count from its first unloaded stretch, the sensor's state before the
-//! trial's first press (later unloaded frames hold what the terms explain).
+//! eight contiguous time blocks are held out in turn (the terms fitted on the other seven). The
+//! best candidate is written only when it lowers the held-out force error consistently across
+//! the blocks (a paired t-test on the per-block log ratios, t < -2.5) and by at least 1 %
+//! overall. Each trial's readings count from its first unloaded stretch, the
+//! sensor's state before the trial's first press (later unloaded frames hold what the terms
+//! explain).
+
+mod design;
 
 use taxel_formats::Recording;
 
-use super::nnls::Normal;
-use super::observe::{observations, Baselines, Observation};
-use crate::calibration::{Block, Calibration, CalibrationFile};
-use crate::dynamics::{
-    lag_step, Creep, CreepSpec, Domain, Dynamics, Hysteresis, HysteresisSpec, State,
-    MAX_ABS_WEIGHT, MAX_POSITIVE_WEIGHT, MAX_TOTAL_SHARE,
-};
+use design::{creep_of, creep_part, hysteresis_of, play_excess, regress, Kind};
+pub use design::{Series, PLAY_GRID, TAU_GRID_S};
 
-/// Candidate time constants (s): log-spaced from a tap to a long hold.
-pub const TAU_GRID_S: [f64; 5] = [0.5, 2.0, 8.0, 32.0, 128.0];
-/// Candidate play half-widths, as shares of the characterisation data's largest force.
-pub const PLAY_GRID: [f64; 6] = [0.01, 0.03, 0.08, 0.15, 0.25, 0.4];
-/// Fitted creep shares and positive play weights are scaled down to at most this total (the
-/// stability limits' margin).
-const FIT_MAX_TOTAL: f64 = 0.85;
-/// Shares and weights below this are dropped.
-const MIN_COEF: f64 = 1e-3;
+use super::observe::{observations, Baselines};
+use crate::calibration::{Block, Calibration, CalibrationFile};
+use crate::dynamics::{Domain, Dynamics, State, MAX_POSITIVE_WEIGHT, MAX_TOTAL_SHARE};
+
 /// Least relative improvement of the held-out error for the terms to be written.
 const MIN_GAIN: f64 = 0.01;
 /// Contiguous time blocks held out in turn.
-const FOLDS: usize = 4;
+const FOLDS: usize = 8;
+/// How many standard errors below zero the mean log ratio of held-out errors must lie.
+const T_MIN: f64 = 2.5;
 
-/// The characterisation frames of one block, in time order.
-#[derive(Debug, Clone)]
-pub struct Series {
-    pub t: Vec<f64>,
-    /// Which recording each frame is from: states start from rest at each new one.
-    pub seg: Vec<usize>,
-    pub o: Vec<Observation>,
-}
-
-impl Series {
-    fn new_seg(&self, k: usize) -> bool {
-        k == 0 || self.seg[k] != self.seg[k - 1]
-    }
-
-    /// Time to the previous frame of the same recording (0 at a start).
-    fn dt(&self, k: usize) -> f64 {
-        if self.new_seg(k) {
-            0.0
-        } else {
-            self.t[k] - self.t[k - 1]
-        }
-    }
-
-    /// Largest reference force.
-    fn f_max(&self) -> f64 {
-        self.o.iter().map(|o| o.f).fold(0.0, f64::max)
-    }
-}
-
-/// The model families tried for a block.
+/// A creep form a candidate has.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Candidate {
-    ReadingCreep,
-    ForceCreep,
-    BoundedCreep,
-    Hysteresis,
-    ForceCreepHysteresis,
-    BoundedCreepHysteresis,
+pub struct CreepForm {
+    pub domain: Domain,
+    pub bounded: bool,
+}
+
+/// A model family tried for a block.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Candidate {
+    pub creep: Option<CreepForm>,
+    pub hysteresis: bool,
 }
 
 impl Candidate {
-    pub const ALL: [Candidate; 6] = [
-        Candidate::ReadingCreep,
-        Candidate::ForceCreep,
-        Candidate::BoundedCreep,
-        Candidate::Hysteresis,
-        Candidate::ForceCreepHysteresis,
-        Candidate::BoundedCreepHysteresis,
-    ];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Candidate::ReadingCreep => "reading creep",
-            Candidate::ForceCreep => "force creep",
-            Candidate::BoundedCreep => "bounded force creep",
-            Candidate::Hysteresis => "hysteresis",
-            Candidate::ForceCreepHysteresis => "force creep + hysteresis",
-            Candidate::BoundedCreepHysteresis => "bounded force creep + hysteresis",
-        }
-    }
-
-    /// The creep it has (None, or whether bounded by the load) and whether it has hysteresis.
-    fn parts(self) -> (Option<bool>, bool) {
-        match self {
-            Candidate::ReadingCreep | Candidate::ForceCreep => (Some(false), false),
-            Candidate::BoundedCreep => (Some(true), false),
-            Candidate::Hysteresis => (None, true),
-            Candidate::ForceCreepHysteresis => (Some(false), true),
-            Candidate::BoundedCreepHysteresis => (Some(true), true),
-        }
-    }
-}
-
-/// First-order lag of `x` at `tau`, per frame the state the frames before it left.
-fn lag(ser: &Series, x: &[f64], tau: f64) -> Vec<f64> {
-    let mut out = Vec::with_capacity(x.len());
-    let mut s = 0.0;
-    for k in 0..x.len() {
-        if ser.new_seg(k) {
-            s = 0.0;
-        }
-        // The state a frame sees was advanced by the frames before it, over their interval.
-        if k > 0 && !ser.new_seg(k) {
-            lag_step(&mut s, x[k - 1], ser.dt(k), tau);
-        }
-        out.push(s);
-    }
-    out
-}
-
-/// `play_r(x) - x` from rest at the start of each recording.
-fn play_excess(ser: &Series, x: &[f64], r: f64) -> Vec<f64> {
-    let mut p = 0.0f64;
-    (0..x.len())
-        .map(|k| {
-            if ser.new_seg(k) {
-                p = 0.0;
-            }
-            p = p.clamp(x[k] - r, x[k] + r);
-            p - x[k]
-        })
+    /// Every candidate.
+    pub fn all() -> Vec<Candidate> {
+        let form = |domain, bounded| Some(CreepForm { domain, bounded });
+        [
+            (form(Domain::Reading, false), false),
+            (form(Domain::Force, false), false),
+            (form(Domain::Force, true), false),
+            (None, true),
+            (form(Domain::Force, false), true),
+            (form(Domain::Force, true), true),
+        ]
+        .into_iter()
+        .map(|(creep, hysteresis)| Candidate { creep, hysteresis })
         .collect()
-}
+    }
 
-/// What a design column is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kind {
-    /// A creep lag: share >= 0.
-    Lag,
-    /// A play: the plays' weights share one sign.
-    Play,
-}
-
-/// Least squares of `y` on `cols` over the frames where `rows` is true: the lags' shares are
-/// non-negative; the plays' weights share one sign, whichever fits the training frames better
-/// (weights of both signs on neighbouring half-widths cancel into a badly conditioned loop).
-/// Returns one coefficient per column.
-fn regress(cols: &[(Vec<f64>, Kind)], y: &[f64], rows: &dyn Fn(usize) -> bool) -> Vec<f64> {
-    let mut best: Option<(f64, Vec<f64>)> = None;
-    let signs: &[f64] = if cols.iter().any(|c| c.1 == Kind::Play) {
-        &[1.0, -1.0]
-    } else {
-        &[1.0]
-    };
-    let sign_of = |kind: Kind, sign: f64| if kind == Kind::Play { sign } else { 1.0 };
-    for &sign in signs {
-        let mut n = Normal::new(cols.len());
-        let mut x = vec![0.0; cols.len()];
-        for (k, yk) in y.iter().enumerate() {
-            if !rows(k) || !yk.is_finite() {
-                continue;
-            }
-            for (xi, (c, kind)) in x.iter_mut().zip(cols) {
-                *xi = sign_of(*kind, sign) * c[k];
-            }
-            n.add(&x, *yk);
-        }
-        let a = n.solve_nonneg();
-        let sse = n.sse(&a);
-        let out: Vec<f64> = a
-            .iter()
-            .zip(cols)
-            .map(|(a, (_, kind))| sign_of(*kind, sign) * a)
-            .collect();
-        if best.as_ref().is_none_or(|b| sse < b.0) {
-            best = Some((sse, out));
+    pub fn name(&self) -> String {
+        let creep = self.creep.map(|c| {
+            format!(
+                "{}{} creep",
+                if c.bounded { "bounded " } else { "" },
+                c.domain.name()
+            )
+        });
+        match (creep, self.hysteresis) {
+            (Some(c), true) => format!("{c} + hysteresis"),
+            (Some(c), false) => c,
+            (None, _) => "hysteresis".into(),
         }
     }
-    best.map(|b| b.1).unwrap_or_default()
-}
-
-/// Creep of `domain` from grid shares (scaled into the stability limit, small ones dropped).
-fn creep_of(block: &str, shares: &[f64], domain: Domain, bounded: bool) -> Option<Creep> {
-    let total: f64 = shares.iter().sum();
-    let scale = if total > FIT_MAX_TOTAL {
-        FIT_MAX_TOTAL / total
-    } else {
-        1.0
-    };
-    let keep: Vec<usize> = (0..shares.len())
-        .filter(|&i| shares[i] * scale >= MIN_COEF)
-        .collect();
-    let spec = CreepSpec {
-        tau_s: keep.iter().map(|&i| TAU_GRID_S[i]).collect(),
-        share: keep.iter().map(|&i| shares[i] * scale).collect(),
-        domain,
-        bounded,
-    };
-    (!keep.is_empty())
-        .then(|| Creep::from_spec(block, &spec).ok())
-        .flatten()
-}
-
-/// Hysteresis from grid weights (positive ones scaled into the limit, small ones dropped).
-fn hysteresis_of(block: &str, weights: &[f64], r: &[f64]) -> Option<Hysteresis> {
-    let positive: f64 = weights.iter().map(|w| w.max(0.0)).sum();
-    let magnitude: f64 = weights.iter().map(|w| w.abs()).sum();
-    let scale = (FIT_MAX_TOTAL / positive.max(1e-300))
-        .min(0.95 * MAX_ABS_WEIGHT / magnitude.max(1e-300))
-        .min(1.0);
-    let w: Vec<f64> = weights.iter().map(|&w| w * scale).collect();
-    let keep: Vec<usize> = (0..w.len()).filter(|&i| w[i].abs() >= MIN_COEF).collect();
-    let spec = HysteresisSpec {
-        threshold_n: keep.iter().map(|&i| r[i]).collect(),
-        weight: keep.iter().map(|&i| w[i]).collect(),
-    };
-    (!keep.is_empty())
-        .then(|| Hysteresis::from_spec(block, &spec).ok())
-        .flatten()
 }
 
 /// What a block's data holds for the fits: static forces, the reference, the rows usable
-/// (the static model in range), and the play half-widths.
+/// (the static model in range) and the play half-widths.
 struct Data<'a> {
     b: &'a Block,
     ser: &'a Series,
@@ -271,11 +125,19 @@ impl<'a> Data<'a> {
         }
     }
 
+    /// The creep columns of form `c` for instantaneous values `x`.
+    fn creep_columns(&self, c: CreepForm, x: &[f64]) -> Vec<(Vec<f64>, Kind)> {
+        TAU_GRID_S
+            .iter()
+            .map(|&tau| (creep_part(self.ser, x, tau, c.bounded), Kind::Lag))
+            .collect()
+    }
+
     /// The candidate's terms fitted on the frames where `train` is true.
     fn fit(&self, cand: Candidate, train: &dyn Fn(usize) -> bool) -> Dynamics {
         let name = &self.b.name;
         let rows = |k: usize| train(k) && self.usable[k];
-        if cand == Candidate::ReadingCreep {
+        if let Some(c) = cand.creep.filter(|c| c.domain == Domain::Reading) {
             let se: Vec<f64> = self
                 .ser
                 .o
@@ -283,20 +145,14 @@ impl<'a> Data<'a> {
                 .map(|o| self.b.reading_for(o.f, o.c))
                 .collect();
             let y: Vec<f64> = self.ser.o.iter().zip(&se).map(|(o, e)| o.s - e).collect();
-            let cols: Vec<(Vec<f64>, Kind)> = TAU_GRID_S
-                .iter()
-                .map(|&tau| (lag(self.ser, &se, tau), Kind::Lag))
-                .collect();
+            let cols = self.creep_columns(c, &se);
             let a = regress(&cols, &y, &rows);
             return Dynamics {
-                creep: creep_of(name, &a[..TAU_GRID_S.len()], Domain::Reading, false),
+                creep: creep_of(name, &a, Domain::Reading, false),
                 hysteresis: None,
             };
         }
-        let (bounded, hyst) = cand.parts();
-        let creep = bounded.is_some();
-        let bounded = bounded == Some(true);
-        let plays: Vec<Vec<f64>> = if hyst {
+        let plays: Vec<Vec<f64>> = if cand.hysteresis {
             self.r_grid
                 .iter()
                 .map(|&r| play_excess(self.ser, &self.f, r))
@@ -307,27 +163,26 @@ impl<'a> Data<'a> {
         let y: Vec<f64> = self.fs.iter().zip(&self.f).map(|(s, f)| s - f).collect();
         let mut fh = self.f.clone();
         let mut out = Dynamics::default();
-        for _ in 0..if creep && hyst { 3 } else { 1 } {
-            let mut cols: Vec<(Vec<f64>, Kind)> = Vec::new();
-            if creep {
-                cols.extend(TAU_GRID_S.iter().map(|&tau| {
-                    let mut l = lag(self.ser, &fh, tau);
-                    if bounded {
-                        l.iter_mut().zip(&fh).for_each(|(x, f)| *x = x.min(*f));
-                    }
-                    (l, Kind::Lag)
-                }));
-            }
+        let passes = if cand.creep.is_some() && cand.hysteresis {
+            3
+        } else {
+            1
+        };
+        for _ in 0..passes {
+            let mut cols = match cand.creep {
+                Some(c) => self.creep_columns(c, &fh),
+                None => Vec::new(),
+            };
+            let nc = cols.len();
             cols.extend(plays.iter().map(|p| (p.clone(), Kind::Play)));
-            let nc = if creep { TAU_GRID_S.len() } else { 0 };
-            let np = plays.len();
             let a = regress(&cols, &y, &rows);
             out = Dynamics {
-                creep: creep
-                    .then(|| creep_of(name, &a[..nc], Domain::Force, bounded))
-                    .flatten(),
-                hysteresis: hyst
-                    .then(|| hysteresis_of(name, &a[nc..nc + np], &self.r_grid))
+                creep: cand
+                    .creep
+                    .and_then(|c| creep_of(name, &a[..nc], Domain::Force, c.bounded)),
+                hysteresis: cand
+                    .hysteresis
+                    .then(|| hysteresis_of(name, &a[nc..], &self.r_grid))
                     .flatten(),
             };
             // The creep lags the hysteretic force: F + sum w (play - F).
@@ -336,7 +191,7 @@ impl<'a> Data<'a> {
                     self.f[k]
                         + plays
                             .iter()
-                            .zip(&a[nc..nc + np])
+                            .zip(&a[nc..])
                             .map(|(p, w)| w * p[k])
                             .sum::<f64>()
                 })
@@ -401,18 +256,18 @@ pub fn fit_block(b: &Block, ser: &Series) -> DynamicsFit {
     let static_folds: Vec<f64> = (0..FOLDS).map(|q| held(q, &statics)).collect();
     let static_rmse_n = mean(static_folds.clone());
     let mut every_fold = Vec::new();
-    let candidates: Vec<(Candidate, f64)> = Candidate::ALL
-        .iter()
-        .map(|&cand| {
+    let candidates: Vec<(Candidate, f64)> = Candidate::all()
+        .into_iter()
+        .map(|cand| {
             let e: Vec<f64> = (0..FOLDS)
                 .map(|q| held(q, &data.predict(data.fit(cand, &|k| fold(k) != q))))
                 .collect();
-            every_fold.push(e.iter().zip(&static_folds).all(|(d, s)| d < s));
+            every_fold.push(consistently_better(&e, &static_folds));
             (cand, mean(e))
         })
         .collect();
-    // The best candidate that beats the static model on every held-out block, by MIN_GAIN
-    // overall.
+    // The best candidate that beats the static model consistently across the held-out blocks,
+    // and by MIN_GAIN overall.
     let best = candidates
         .iter()
         .zip(&every_fold)
@@ -427,6 +282,28 @@ pub fn fit_block(b: &Block, ser: &Series) -> DynamicsFit {
         static_rmse_n,
         candidates,
     }
+}
+
+/// Whether held-out errors `e` beat the static model's `s` consistently across the held-out
+/// blocks: the mean of the per-block log ratios `ln(e / s)` is below zero by more than
+/// [`T_MIN`] standard errors (a one-sided paired t-test, p < 0.02 with eight blocks). A
+/// candidate that merely fits noise wins some blocks and loses others; one that is much better
+/// everywhere but one block still passes.
+fn consistently_better(e: &[f64], s: &[f64]) -> bool {
+    let d: Vec<f64> = e
+        .iter()
+        .zip(s)
+        .filter(|(e, s)| **e > 0.0 && **s > 0.0)
+        .map(|(e, s)| (e / s).ln())
+        .collect();
+    let n = d.len() as f64;
+    if d.len() < 3 {
+        return false;
+    }
+    let mean = d.iter().sum::<f64>() / n;
+    let var = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    let se = (var / n).sqrt().max(1e-12);
+    mean / se < -T_MIN
 }
 
 /// The characterisation series of block `b`.
@@ -464,13 +341,13 @@ fn report_line(name: &str, fit: &DynamicsFit) -> String {
         .map(|(c, e)| format!("{} {e:.3}", c.name()))
         .collect();
     let head = format!(
-        "block {name:>6}: held-out RMSE (4 time blocks of the characterisation data) static {:.3} N; {}",
+        "block {name:>6}: held-out RMSE ({FOLDS} time blocks of the characterisation data) static {:.3} N; {}",
         fit.static_rmse_n,
         tried.join(", ")
     );
     match &fit.chosen {
         None => format!(
-            "{head}: no dynamic term lowers it on every held-out block and by {:.0} % (none written)",
+            "{head}: no dynamic term lowers it consistently across the blocks and by {:.0} % (none written)",
             MIN_GAIN * 100.0
         ),
         Some((c, d)) => {
@@ -478,7 +355,8 @@ fn report_line(name: &str, fit: &DynamicsFit) -> String {
             if let Some(cr) = d.creep {
                 let s = cr.spec();
                 terms.push(format!(
-                    "{} creep tau {:?} s share {:?}",
+                    "{}{} creep tau {:?} s share {:?}",
+                    if s.bounded { "bounded " } else { "" },
                     s.domain.name(),
                     s.tau_s,
                     round(&s.share)
@@ -553,6 +431,7 @@ pub fn add_dynamics(
 
 #[cfg(test)]
 mod tests {
+    use super::super::observe::Observation;
     use super::*;
 
     fn series_of(f: &[f64], s: &[f64]) -> Series {
@@ -614,8 +493,8 @@ mod tests {
         let fit = fit_block(&block(""), &series_of(&f, &s));
         let (cand, d) = fit.chosen.expect("terms written");
         assert_eq!(
-            cand,
-            Candidate::ForceCreepHysteresis,
+            (cand.creep.map(|c| (c.domain, c.bounded)), cand.hysteresis),
+            (Some((Domain::Force, false)), true),
             "{:?}",
             fit.candidates
         );
@@ -644,20 +523,5 @@ mod tests {
             .collect();
         let fit = fit_block(&block(""), &series_of(&f, &s));
         assert!(fit.chosen.is_none(), "{fit:?}");
-    }
-
-    #[test]
-    fn lags_and_plays_restart_with_each_recording() {
-        let ser = Series {
-            t: vec![0.0, 1.0, 2.0, 0.0, 1.0],
-            seg: vec![0, 0, 0, 1, 1],
-            o: Vec::new(),
-        };
-        let x = [5.0, 5.0, 5.0, 5.0, 5.0];
-        let l = lag(&ser, &x, 1.0);
-        assert_eq!((l[0], l[3]), (0.0, 0.0));
-        assert!(l[1] > 0.0 && l[2] > l[1] && l[4] == l[1], "{l:?}");
-        let p = play_excess(&ser, &x, 2.0);
-        assert_eq!(p, vec![-2.0; 5]);
     }
 }
