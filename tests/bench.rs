@@ -1,18 +1,13 @@
 //! `taxel bench --json` prints one JSON object with the documented cases and fields, and writes
 //! its table and plots. (Speed is reported, never asserted: only the shape and zero loss.)
 
-mod common;
-
-use common::{run, unique_prefix};
+use taxel_testkit::pipeline;
 
 #[test]
 fn bench_json_has_every_case() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let out = dir.path().display().to_string();
-    let (code, stdout, err) = run(
-        &unique_prefix("b"),
-        &["bench", "--json", "--seconds", "0.6", "--out", &out],
-    );
+    let p = pipeline!("b");
+    let out = p.dir().display().to_string();
+    let (code, stdout, err) = p.run(&["bench", "--json", "--seconds", "0.6", "--out", &out]);
     assert_eq!(code, 0, "{err}");
     let lines: Vec<&str> = stdout.lines().collect();
     assert_eq!(lines.len(), 1, "one JSON object: {stdout}");
@@ -50,6 +45,6 @@ fn bench_json_has_every_case() {
         );
     }
     for f in ["bench.md", "bench.json", "latency.svg", "latency.png"] {
-        assert!(dir.path().join(f).exists(), "{f}");
+        assert!(p.path(f).exists(), "{f}");
     }
 }

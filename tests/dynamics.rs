@@ -2,13 +2,9 @@
 //! (`taxel calibrator fit --dynamics`), written to the file, applied by the calibrator, and
 //! judged by `eval` beside the same calibration without them, on a held-out session.
 
-mod common;
+use taxel_testkit::{pipeline, Pipeline};
 
-use std::path::Path;
-
-use common::run;
-
-fn scenario(dir: &Path, name: &str, seed: u64, presses: &[(f64, f64, f64)]) -> String {
+fn scenario(p: &Pipeline, name: &str, seed: u64, presses: &[(f64, f64, f64)]) -> String {
     let mut s = format!(
         "name = \"{name}\"\nrate_hz = 100\nseed = {seed}\nmounting = {{ curvature_m1 = 0, rotation_deg = 0, flipped = false }}\n\n[[step]]\nkind = \"rest\"\nduration_s = 2.0\n"
     );
@@ -17,72 +13,60 @@ fn scenario(dir: &Path, name: &str, seed: u64, presses: &[(f64, f64, f64)]) -> S
             "\n[[step]]\nkind = \"press\"\nforce_n = {f}\nramp_s = 0.5\nhold_s = {hold}\nrelease_s = 0.3\nrest_s = {rest}\n"
         ));
     }
-    let scen = dir.join(format!("{name}.toml"));
+    let scen = p.path(&format!("{name}.toml"));
     std::fs::write(&scen, s).expect("write");
-    let out = dir.join(format!("{name}.csv.gz"));
-    let model = dir.join("model.toml");
-    let (code, _, err) = run(
-        "dyn",
-        &[
-            "publisher",
-            "--sensor",
-            "s0",
-            "sim",
-            "--scenario",
-            &scen.display().to_string(),
-            "--model",
-            &model.display().to_string(),
-            "--to-csv",
-            &out.display().to_string(),
-        ],
-    );
+    let out = p.path(&format!("{name}.csv.gz"));
+    let model = p.path("model.toml");
+    let (code, _, err) = p.run(&[
+        "publisher",
+        "--sensor",
+        "s0",
+        "sim",
+        "--scenario",
+        &scen.display().to_string(),
+        "--model",
+        &model.display().to_string(),
+        "--to-csv",
+        &out.display().to_string(),
+    ]);
     assert_eq!(code, 0, "{err}");
     out.display().to_string()
 }
 
 #[test]
 fn creep_terms_fitted_on_long_holds_take_the_drift_out_of_a_held_out_session() {
-    let dir = tempfile::tempdir().expect("tempdir");
+    let p = pipeline!("dyn");
     // A sensor that creeps 20 % under a held load (two time constants).
-    std::fs::write(
-        dir.path().join("model.toml"),
+    p.write(
+        "model.toml",
         "[creep]\namplitudes = [0.08, 0.12]\ntau_s = [3.0, 40.0]\n",
-    )
-    .expect("write");
+    );
     let presses: Vec<(f64, f64, f64)> =
         [1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 10.0, 12.0, 15.0, 18.0, 20.0]
             .iter()
             .map(|&f| (f, 1.0, 0.5))
             .collect();
-    let fixtures = scenario(dir.path(), "fixtures", 11, &presses);
+    let fixtures = scenario(&p, "fixtures", 11, &presses);
     let holds = [
         (2.0, 30.0, 30.0),
         (10.0, 30.0, 30.0),
         (5.0, 30.0, 30.0),
         (15.0, 30.0, 30.0),
     ];
-    let chars = scenario(dir.path(), "characterisation", 12, &holds);
-    let test = scenario(
-        dir.path(),
-        "session",
-        13,
-        &[(4.0, 20.0, 20.0), (8.0, 20.0, 20.0)],
-    );
-    let cal = dir.path().join("cal.toml").display().to_string();
-    let (code, stdout, err) = run(
-        "dyn",
-        &[
-            "calibrator",
-            "fit",
-            "--flat",
-            "--data",
-            &fixtures,
-            "--dynamics",
-            &chars,
-            "--out",
-            &cal,
-        ],
-    );
+    let chars = scenario(&p, "characterisation", 12, &holds);
+    let test = scenario(&p, "session", 13, &[(4.0, 20.0, 20.0), (8.0, 20.0, 20.0)]);
+    let cal = p.arg("cal.toml");
+    let (code, stdout, err) = p.run(&[
+        "calibrator",
+        "fit",
+        "--flat",
+        "--data",
+        &fixtures,
+        "--dynamics",
+        &chars,
+        "--out",
+        &cal,
+    ]);
     assert_eq!(code, 0, "{err}");
     assert!(
         stdout
@@ -93,22 +77,19 @@ fn creep_terms_fitted_on_long_holds_take_the_drift_out_of_a_held_out_session() {
     let text = std::fs::read_to_string(&cal).expect("written");
     assert_eq!(text.matches("creep = { tau_s = [").count(), 2, "{text}");
 
-    let (code, json, err) = run(
-        "dyn",
-        &[
-            "calibrator",
-            "eval",
-            "--curvature-m1",
-            "0",
-            "--calibration",
-            &cal,
-            "--recording",
-            &test,
-            "--levels",
-            "4,8",
-            "--json",
-        ],
-    );
+    let (code, json, err) = p.run(&[
+        "calibrator",
+        "eval",
+        "--curvature-m1",
+        "0",
+        "--calibration",
+        &cal,
+        "--recording",
+        &test,
+        "--levels",
+        "4,8",
+        "--json",
+    ]);
     assert_eq!(code, 0, "{err}");
     let v: serde_json::Value = serde_json::from_str(&json).expect("json");
     let h = &v["hold_drift"];

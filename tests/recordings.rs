@@ -2,12 +2,10 @@
 //! back with the `mcap` crate itself (every message, in order, with its values and capture
 //! time), then played back from the MCAP by the publisher and recorded again.
 
-mod common;
-
 use std::time::Duration;
 
-use common::{run, spawn_ready, unique_prefix};
 use taxel_formats::{Record, RecordFileReader};
+use taxel_testkit::pipeline;
 
 fn f(v: &serde_json::Value) -> f32 {
     v.as_f64().map_or(f32::NAN, |x| x as f32)
@@ -105,15 +103,12 @@ fn check(msg: &mcap::Message<'_>, rec: &Record) {
 
 #[test]
 fn demo_recording_exports_to_mcap_and_replays_from_it() {
-    let prefix = unique_prefix("m");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let out = dir.path().display().to_string();
-    let (code, stdout, stderr) = run(
-        &prefix,
-        &["demo", "--seconds", "4", "--rate-hz", "200", "--out", &out],
-    );
+    let p = pipeline!("m");
+    let out = p.dir().display().to_string();
+    let (code, stdout, stderr) =
+        p.run(&["demo", "--seconds", "4", "--rate-hz", "200", "--out", &out]);
     assert_eq!(code, 0, "demo failed:\n{stdout}\n{stderr}");
-    let taxrec = dir.path().join("demo.taxrec");
+    let taxrec = p.path("demo.taxrec");
     let records: Vec<Record> = RecordFileReader::open(&taxrec)
         .expect("record file")
         .collect();
@@ -136,17 +131,14 @@ fn demo_recording_exports_to_mcap_and_replays_from_it() {
     }
 
     // Export and read back with the mcap crate.
-    let mcap_path = dir.path().join("demo.mcap");
-    let (code, stdout, stderr) = run(
-        &prefix,
-        &[
-            "logger",
-            "export",
-            &taxrec.display().to_string(),
-            "--mcap",
-            &mcap_path.display().to_string(),
-        ],
-    );
+    let mcap_path = p.path("demo.mcap");
+    let (code, stdout, stderr) = p.run(&[
+        "logger",
+        "export",
+        &taxrec.display().to_string(),
+        "--mcap",
+        &mcap_path.display().to_string(),
+    ]);
     assert_eq!(code, 0, "export failed:\n{stdout}\n{stderr}");
     assert!(
         stdout.contains(&format!("{} messages", records.len())),
@@ -181,36 +173,21 @@ fn demo_recording_exports_to_mcap_and_replays_from_it() {
 
     // Replay the MCAP's raw channel as sensor r0 and record it again: every frame, in order,
     // with the same counts.
-    let prefix2 = unique_prefix("mr");
-    let again = dir.path().join("again.taxrec");
-    let mut logger = spawn_ready(
-        "logger",
-        &prefix2,
-        &[
-            "logger",
-            "record",
-            "--sensor",
-            "r0",
-            "--out",
-            &again.display().to_string(),
-        ],
-        "logger ready",
-    );
-    let (code, stdout, stderr) = run(
-        &prefix2,
-        &[
-            "publisher",
-            "--sensor",
-            "r0",
-            "replay",
-            &mcap_path.display().to_string(),
-            "--speed",
-            "4",
-        ],
-    );
+    let mut p2 = pipeline!("mr");
+    let again = p.path("again.taxrec");
+    let logger = p2.logger("r0", &again.display().to_string(), &[]);
+    let (code, stdout, stderr) = p2.run(&[
+        "publisher",
+        "--sensor",
+        "r0",
+        "replay",
+        &mcap_path.display().to_string(),
+        "--speed",
+        "4",
+    ]);
     assert_eq!(code, 0, "replay failed:\n{stdout}\n{stderr}");
-    logger.sigint();
-    assert!(logger.wait_exit(Duration::from_secs(20)).success());
+    p2[logger].sigint();
+    p2.finish(logger, Duration::from_secs(20));
     let original: Vec<Vec<f32>> = records
         .iter()
         .filter_map(|r| match r {
@@ -229,18 +206,8 @@ fn demo_recording_exports_to_mcap_and_replays_from_it() {
     assert!(replayed == original, "replayed counts differ");
 
     // A damaged MCAP is refused with a one-line error naming it (exit 2).
-    let cut = dir.path().join("cut.mcap");
-    std::fs::write(&cut, &bytes[..bytes.len() / 3]).expect("write cut file");
-    let (code, _, err) = run(
-        &prefix2,
-        &[
-            "publisher",
-            "--sensor",
-            "r0",
-            "replay",
-            &cut.display().to_string(),
-        ],
-    );
+    let cut = p.write("cut.mcap", &bytes[..bytes.len() / 3]);
+    let (code, _, err) = p2.run(&["publisher", "--sensor", "r0", "replay", &cut]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("cut.mcap: unreadable after"), "{err}");
 }
