@@ -185,3 +185,62 @@ fn estimator_eval_json_is_one_object_with_the_documented_keys() {
         .expect("plot")
         .contains("<svg"));
 }
+
+#[test]
+fn simcheck_runs_as_a_taxel_subcommand() {
+    let p = pipeline!("sc");
+    let out = p.arg("null.csv");
+    let (code, _, err) = p.run(&[
+        "simcheck",
+        "world",
+        "--case",
+        "null",
+        "--seconds",
+        "5",
+        "--out",
+        &out,
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let rec = taxel_formats::Recording::read(std::path::Path::new(&out)).expect("a recording");
+    assert!(
+        rec.len() > 100 && rec.force_n.is_some(),
+        "{} rows",
+        rec.len()
+    );
+    // Bad input: one error line naming it, exit 2, as from `taxel-simcheck`.
+    let (code, _, err) = p.run(&["simcheck", "world", "--case", "nosuch", "--out", &out]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.lines()
+            .any(|l| l.contains("error") && l.contains("nosuch")),
+        "{err}"
+    );
+}
+
+#[test]
+fn evaluate_defaults_its_output_to_a_temp_dir_and_says_so() {
+    let p = pipeline!("ev");
+    let cwd = p.path("cwd");
+    std::fs::create_dir(&cwd).expect("cwd");
+    // Bad input (checked before anything is written): exit 2 with one line naming it, and the
+    // default output directory, under the system temp dir, named.
+    let out = p
+        .command(&["evaluate", "worlds", "--epochs", "0"])
+        .current_dir(&cwd)
+        .stdin(std::process::Stdio::null())
+        .output()
+        .expect("run taxel evaluate");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("--epochs must be"), "{err}");
+    let dir = err
+        .lines()
+        .find_map(|l| l.strip_prefix("taxel evaluate worlds: writing to "))
+        .and_then(|l| l.split(" (--out").next())
+        .unwrap_or_else(|| panic!("no output directory named:\n{err}"));
+    assert!(
+        std::path::Path::new(dir).starts_with(std::env::temp_dir()),
+        "{dir}"
+    );
+    assert_eq!(std::fs::read_dir(&cwd).expect("cwd").count(), 0);
+}

@@ -435,6 +435,13 @@ sensor = "s0"
             .any(|l| l.contains("publisher-s1") && l.contains("gave up (exit 2)")),
         "{out}"
     );
+    // The reason for the exit code, in one line.
+    assert!(
+        out.lines()
+            .any(|l| l
+                .starts_with("taxel up: error: 1 process(es) did not end cleanly: publisher-s1")),
+        "{out}"
+    );
     for (n, _) in &survivors {
         assert!(
             out.lines()
