@@ -130,6 +130,16 @@ fn demo_runs_every_role_as_a_process_and_exits_clean() {
         stdout.contains("logger") && stdout.contains("no iceoryx2 nodes left"),
         "{stdout}"
     );
+    // Each control loop's summary says how many start-up samples it left out of its statistics.
+    for name in ["s0", "s1"] {
+        assert!(
+            stdout
+                .lines()
+                .any(|l| l.starts_with(&format!("[{name}] summary:"))
+                    && l.contains("start-up samples ")),
+            "{stdout}"
+        );
+    }
     assert!(p.path("demo.taxrec").exists());
     assert_eq!(shm_files(&prefix), Vec::<String>::new());
 }
