@@ -116,14 +116,8 @@ fn calibrator_keeps_serving_through_bad_calibration_files() {
     // served entirely by the version before it, and the last good file serves at the end.
     let mut forces = Vec::new();
     for r in RecordFileReader::open(&rec).expect("record file") {
-        if let Record::Force {
-            t_publish_ns,
-            cal_version,
-            total_force_n,
-            ..
-        } = r
-        {
-            forces.push((t_publish_ns, cal_version, total_force_n));
+        if let Record::Force(f) = r {
+            forces.push((f.t_publish_ns, f.cal_version, f.total_force_n));
         }
     }
     assert!(forces.len() > 1000, "only {} force samples", forces.len());
@@ -170,17 +164,12 @@ fn fails(p: &Pipeline, args: &[&str], code: i32, needles: &[&str]) {
 }
 
 fn raw(seq: u64) -> Record {
-    Record::Raw {
-        sensor: "s0".into(),
-        seq,
-        t_capture_ns: 1_000_000 * seq,
-        rows: 2,
-        cols: 2,
-        flags: 0,
-        source: 1,
-        full_scale: 1023.0,
-        counts: vec![100.0 + seq as f32, 101.0, 102.0, 103.0],
-    }
+    let mut f = taxel_msgs::RawFrame::ZERO;
+    f.sensor = taxel_msgs::sensor_id_bytes("s0").expect("id");
+    (f.seq, f.t_capture_ns, f.rows, f.cols) = (seq, 1_000_000 * seq, 2, 2);
+    (f.source, f.full_scale) = (1, 1023.0);
+    f.counts[..4].copy_from_slice(&[100.0 + seq as f32, 101.0, 102.0, 103.0]);
+    f.into()
 }
 
 #[test]

@@ -113,16 +113,9 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
     p.stop(&[calibrator, estimator, logger]);
     let mut live = BTreeMap::new();
     for r in RecordFileReader::open(Path::new(&rec_file)).expect("record file") {
-        if let Record::Force {
-            seq,
-            flags,
-            total_force_n,
-            block_force_n,
-            ..
-        } = r
-        {
-            if flags & taxel_msgs::force_flags::NO_BASELINE == 0 {
-                live.insert(seq, (total_force_n, block_force_n[0]));
+        if let Record::Force(f) = r {
+            if f.flags & taxel_msgs::force_flags::NO_BASELINE == 0 {
+                live.insert(f.seq, (f.total_force_n, f.block_force_n[0]));
             }
         }
     }

@@ -111,11 +111,11 @@ fn logger_survives_a_full_disk_and_marks_the_gap() {
     let mut seqs = Vec::new();
     let mut gap_marks = Vec::new();
     for r in reader.by_ref() {
-        if let Record::Raw { seq, flags, .. } = r {
-            if flags & raw_flags::GAP_BEFORE != 0 {
+        if let Record::Raw(f) = r {
+            if f.flags & raw_flags::GAP_BEFORE != 0 {
                 gap_marks.push(seqs.len());
             }
-            seqs.push(seq);
+            seqs.push(f.seq);
         }
     }
     assert_eq!(reader.tail(), Some(&Tail::Clean), "file damaged");

@@ -62,22 +62,16 @@ fn learned_estimates_track_the_mounting_and_hold_under_load() {
     let mut estimates = Vec::new();
     for r in RecordFileReader::open(&rec).expect("record file") {
         match r {
-            Record::Reference {
-                seq,
-                force_n,
-                t_source_s,
-                ..
-            } => {
-                force.insert(seq, (force_n, t_source_s));
+            Record::Reference(v) => {
+                force.insert(v.seq, (v.force_n, v.t_source_s));
             }
-            Record::Curvature {
-                seq,
-                curvature_m1,
-                curvature_sd_m1,
-                flags,
-                model_version,
-                ..
-            } => estimates.push((seq, curvature_m1, curvature_sd_m1, flags, model_version)),
+            Record::Curvature(e) => estimates.push((
+                e.seq,
+                e.curvature_m1,
+                e.curvature_sd_m1,
+                e.flags,
+                e.model_version,
+            )),
             _ => {}
         }
     }

@@ -196,14 +196,14 @@ flush_ms = 100
     let raw: Vec<(u64, u32)> = second
         .iter()
         .filter_map(|r| match r {
-            Record::Raw { seq, flags, .. } => Some((*seq, *flags)),
+            Record::Raw(f) => Some((f.seq, f.flags)),
             _ => None,
         })
         .collect();
     let force: Vec<(u64, u32)> = second
         .iter()
         .filter_map(|r| match r {
-            Record::Force { seq, flags, .. } => Some((*seq, *flags)),
+            Record::Force(f) => Some((f.seq, f.flags)),
             _ => None,
         })
         .collect();
@@ -239,11 +239,8 @@ fn a_sigkilled_logger_leaves_a_recording_readable_up_to_its_last_flush() {
     let mut total = 0usize;
     while let Some(r) = reader.next_record() {
         total += 1;
-        if let Record::Raw {
-            seq, t_capture_ns, ..
-        } = r
-        {
-            raw.push((seq, t_capture_ns));
+        if let Record::Raw(f) = r {
+            raw.push((f.seq, f.t_capture_ns));
         }
     }
     assert!(raw.len() > 300, "only {} raw records", raw.len());
@@ -275,7 +272,7 @@ fn a_sigkilled_logger_leaves_a_recording_readable_up_to_its_last_flush() {
     assert!(
         read_records(&p.path("run2.taxrec"))
             .iter()
-            .any(|r| matches!(r, Record::Raw { .. })),
+            .any(|r| matches!(r, Record::Raw(_))),
         "the publisher kept streaming after the logger was killed"
     );
     p.stop(&[publisher]);

@@ -12,10 +12,10 @@ fn raw_shapes(path: &std::path::Path) -> (usize, Vec<(u16, u16)>) {
     let mut n = 0;
     let mut shapes = Vec::new();
     for r in RecordFileReader::open(path).expect("record file") {
-        if let Record::Raw { rows, cols, .. } = r {
+        if let Record::Raw(f) = r {
             n += 1;
-            if !shapes.contains(&(rows, cols)) {
-                shapes.push((rows, cols));
+            if !shapes.contains(&(f.rows, f.cols)) {
+                shapes.push((f.rows, f.cols));
             }
         }
     }

@@ -122,7 +122,7 @@ fn bad_model_files_are_refused_and_a_good_one_is_picked_up() {
         let v: Vec<u32> = RecordFileReader::open(&rec)
             .map(|r| {
                 r.filter_map(|rec| match rec {
-                    Record::Curvature { model_version, .. } => Some(model_version),
+                    Record::Curvature(e) => Some(e.model_version),
                     _ => None,
                 })
                 .collect()

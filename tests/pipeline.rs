@@ -95,33 +95,25 @@ fn pipeline_streams_tracks_force_hot_reloads_and_shuts_down_clean() {
     let mut reference = BTreeMap::new();
     for r in RecordFileReader::open(&rec).expect("record file") {
         match r {
-            Record::Raw { seq, .. } => {
-                raw.insert(seq, ());
+            Record::Raw(f) => {
+                raw.insert(f.seq, ());
             }
-            Record::Force {
-                seq,
-                total_force_n,
-                block_force_n,
-                cal_version,
-                flags,
-                t_publish_ns,
-                ..
-            } => {
+            Record::Force(f) => {
                 force.insert(
-                    seq,
+                    f.seq,
                     (
-                        total_force_n,
-                        block_force_n[0],
-                        cal_version,
-                        flags,
-                        t_publish_ns,
+                        f.total_force_n,
+                        f.block_force_n[0],
+                        f.cal_version,
+                        f.flags,
+                        f.t_publish_ns,
                     ),
                 );
             }
-            Record::Reference { seq, force_n, .. } => {
-                reference.insert(seq, force_n);
+            Record::Reference(v) => {
+                reference.insert(v.seq, v.force_n);
             }
-            Record::Curvature { .. } => {}
+            Record::Curvature(_) => {}
         }
     }
     assert!(
@@ -204,12 +196,7 @@ fn late_calibrator_gets_the_latest_curvature_from_history() {
     let forces: Vec<(u32, f32, f32)> = RecordFileReader::open(&rec)
         .expect("record file")
         .filter_map(|r| match r {
-            Record::Force {
-                flags,
-                total_force_n,
-                curvature_m1,
-                ..
-            } => Some((flags, total_force_n, curvature_m1)),
+            Record::Force(f) => Some((f.flags, f.total_force_n, f.curvature_m1)),
             _ => None,
         })
         .collect();

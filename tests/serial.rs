@@ -155,9 +155,7 @@ fn scenario(wire: Wire) {
     let frames: Vec<(u64, u32, Vec<f32>)> = RecordFileReader::open(&rec)
         .expect("recording")
         .filter_map(|r| match r {
-            Record::Raw {
-                seq, flags, counts, ..
-            } => Some((seq, flags, counts)),
+            Record::Raw(f) => Some((f.seq, f.flags, f.nodes().to_vec())),
             _ => None,
         })
         .collect();
