@@ -94,6 +94,13 @@ fn a_version_1_record_file_reads_as_it_was_written() {
     w.finish().expect("finish");
     let (version, again) = read_all(&v2);
     assert_eq!(version, 2);
+    let size = |p: &Path| std::fs::metadata(p).map_or(0, |m| m.len());
+    eprintln!(
+        "{} records: {} bytes in version 1, {} in version 2",
+        recs.len(),
+        size(&data("v1.taxrec")),
+        size(&v2)
+    );
     assert_eq!(again.len(), recs.len());
     for (a, b) in again.iter().zip(&recs) {
         assert!(same(a, b), "{a:?}\n{b:?}");
