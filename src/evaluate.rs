@@ -51,6 +51,23 @@ pub enum Evaluate {
         #[arg(long)]
         json: bool,
     },
+    /// Dynamic calibration (creep, hysteresis) on every simulator family with hold-out seeds and
+    /// on world B: the paper's objects held 15 s at 2-8 N in a warming hand, calibrated with and
+    /// without the dynamic terms fitted on one characterisation recording (dynamics.md).
+    Dynamics {
+        /// Output directory (default: a fresh directory under the system temp dir, printed).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Simulator families (taxel-sim presets), comma separated.
+        #[arg(long, value_delimiter = ',', default_values_t = taxel_calibrator::worlds::FAMILIES.map(String::from))]
+        families: Vec<String>,
+        /// Seeds of each family (default: the hold-out seeds, never tuned on), comma separated.
+        #[arg(long, value_delimiter = ',', default_values_t = taxel_calibrator::worlds::HOLDOUT_SEEDS)]
+        seeds: Vec<u64>,
+        /// Folder holding worldb/ (skipped with a note when absent).
+        #[arg(long, default_value = "../shared/data")]
+        shared: PathBuf,
+    },
 }
 
 pub fn main(e: Evaluate) -> ExitCode {
@@ -96,7 +113,49 @@ fn run(e: Evaluate) -> Result<(), Failure> {
             },
             json,
         ),
+        Evaluate::Dynamics {
+            out,
+            families,
+            seeds,
+            shared,
+        } => dynamics(taxel_calibrator::worlds::Options {
+            out: out_dir(out, "dynamics"),
+            families,
+            seeds,
+            shared: Some(shared),
+            epochs: 1,
+        }),
     }
+}
+
+fn dynamics(o: taxel_calibrator::worlds::Options) -> Result<(), Failure> {
+    use taxel_calibrator::worlds;
+    let mut bar = taxel_runtime::progress::Progress::new("dynamics", 1);
+    let t0 = std::time::Instant::now();
+    let s = worlds::run_dynamics(&o, |done, total, what| {
+        bar.set_total(total as u64);
+        bar.set(done as u64);
+        tracing::info!("dynamics: {what} ({:.0} s)", t0.elapsed().as_secs_f64());
+    })
+    // As for worlds: bad input and failure alike exit 2, as before.
+    .config_err()?;
+    bar.finish();
+    let command = std::env::args().collect::<Vec<_>>().join(" ");
+    let md = worlds::dynamics_markdown(&s, &command);
+    let js = worlds::dynamics_json(&s);
+    for (name, text) in [("dynamics.md", &md), ("dynamics.json", &js)] {
+        let p = o.out.join(name);
+        std::fs::write(&p, format!("{text}\n"))
+            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+            .runtime_err()?;
+    }
+    println!("{md}");
+    println!(
+        "done in {:.0} s; report: {}",
+        t0.elapsed().as_secs_f64(),
+        o.out.join("dynamics.md").display()
+    );
+    Ok(())
 }
 
 fn worlds(o: taxel_calibrator::worlds::Options, json: bool) -> Result<(), Failure> {

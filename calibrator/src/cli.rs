@@ -142,10 +142,15 @@ pub struct FitArgs {
     /// tenth of the reference range.
     #[arg(long)]
     pub accept_poor_fit: bool,
-    /// Characterisation recordings with a reference force (long holds, sweeps): fit creep
-    /// terms for every block on them, kept where they lower the held-out error.
-    #[arg(long, num_args = 1..)]
+    /// Characterisation recordings with a reference force (long holds, triangle sweeps; a
+    /// curvature_m1 column or the calibration's default curvature): fit dynamic terms (creep,
+    /// hysteresis) for every block on them, written where they lower the held-out error.
+    #[arg(long, num_args = 1.., conflicts_with = "dynamics_from")]
     pub dynamics: Vec<PathBuf>,
+    /// Take the dynamic terms from a simulator model instead (SIM.toml from `taxel-simcheck
+    /// diagnose`, or any taxel-sim model file): its creep and hysteresis.
+    #[arg(long)]
+    pub dynamics_from: Option<PathBuf>,
     /// Calibration id written into the file.
     #[arg(long, default_value = "fitted")]
     pub id: String,
@@ -252,6 +257,11 @@ fn fit(a: FitArgs) -> Result<(), Failure> {
             chars.push(Recording::read(p).config_err()?);
         }
         (text, cal) = crate::fit::with_dynamics(&text, &cal, &chars, &mut report).config_err()?;
+    }
+    if let Some(p) = &a.dynamics_from {
+        let model = crate::fit::from_sim::load(p).config_err()?;
+        (text, cal) =
+            crate::fit::with_sim_dynamics(&text, &cal, &model, &mut report).config_err()?;
     }
     for line in &report {
         println!("{line}");

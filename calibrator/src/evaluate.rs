@@ -6,7 +6,8 @@
 //!
 //! Two ways to get the curvature:
 //! - predicted (the paper's protocol): from the first no-load window, by a curvature model;
-//!   frames before that estimate are not scored;
+//!   frames before that estimate are not scored; later windows re-zero the calibration as they
+//!   do live, with the first window's curvature held;
 //! - given (`Curvature::Known`, a single-node sensor or a known mounting): the stream's
 //!   baseline still comes from the estimator's no-load detection, and until the first window
 //!   from the calibration's `no_load_reading` (when it has one); every frame with a force is
@@ -273,9 +274,7 @@ struct Side {
 impl Side {
     fn new(curve: &Calibration, flat: Option<&Calibration>) -> Side {
         let wrap = |c: &Calibration| Calibrator::for_calibration(c.clone(), f64::INFINITY);
-        let dynamic = std::iter::once(&curve.array)
-            .chain(&curve.blocks)
-            .any(|b| b.creep.is_some());
+        let dynamic = curve.all_blocks().any(|b| !b.dynamics.is_static());
         Side {
             curve: wrap(curve),
             flat: flat.map(wrap),
@@ -386,21 +385,27 @@ pub fn evaluate_with(
         side.set_known(c);
     }
     let mut estimate: Option<(f64, f64, usize)> = given.map(|c| (c, 0.0, 0));
-    let mut seen_estimate = false;
     let n = rec.len();
     let mut forces = [Vec::with_capacity(n), Vec::with_capacity(n)];
     let mut statics = [Vec::with_capacity(n), Vec::with_capacity(n)];
     for (i, frame) in frames(rec, g).enumerate() {
         if let Some(e) = estimator.push(&frame)? {
-            // The first estimate serves from the frame that completed its window on (live,
-            // that frame gets it or not depending on which process handles it first). With a
-            // predicted curvature only the first estimate is used, as in the protocol.
-            if given.is_some() || !seen_estimate {
-                side.set_curvature(e);
-                if given.is_none() {
-                    estimate = Some((e.curvature_m1 as f64, e.curvature_sd_m1 as f64, i));
+            // An estimate serves from the frame that completed its window on (live, that frame
+            // gets it or not depending on which process handles it first). Every no-load
+            // window re-zeroes, as live; with a predicted curvature the first window's
+            // curvature is held, as in the protocol.
+            match estimate {
+                Some((c, _, _)) if given.is_none() => {
+                    let mut held = *e;
+                    held.curvature_m1 = c as f32;
+                    side.set_curvature(&held);
                 }
-                seen_estimate = true;
+                _ => {
+                    side.set_curvature(e);
+                    if given.is_none() {
+                        estimate = Some((e.curvature_m1 as f64, e.curvature_sd_m1 as f64, i));
+                    }
+                }
             }
         }
         let per_block = if estimate.is_none() {

@@ -234,7 +234,8 @@ pub mod force_flags {
     /// calibration file's `no_load_reading` (set together with `NO_BASELINE`).
     pub const BASELINE_FROM_CALIBRATION: u32 = 1 << 6;
     /// The calibration has dynamic terms whose state is not known yet: the calibrator started
-    /// (or restarted) with the sensor loaded, less than the largest time constant ago.
+    /// with the sensor loaded, or restarted with hysteresis terms, and the largest creep time
+    /// constant has not passed or the force has not swept every play yet.
     pub const DYNAMICS_WARMING: u32 = 1 << 7;
 }
 

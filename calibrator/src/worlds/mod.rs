@@ -12,12 +12,16 @@
 //!
 //! Every number is reported per family, world and file; nothing is averaged across worlds.
 
+pub mod dynamic;
+pub mod dynamic_real;
+mod dynamic_report;
 mod external;
 mod report;
 mod zoo;
 
 use std::path::{Path, PathBuf};
 
+pub use dynamic_report::{dynamics_json, dynamics_markdown};
 pub use report::{json, markdown};
 
 /// The simulator families run by default (taxel-sim presets).
@@ -152,4 +156,51 @@ fn absent(what: &str, d: Option<&Path>) -> String {
         Some(d) => format!("{what}: skipped, {} not found", d.display()),
         None => format!("{what}: skipped, no --shared folder"),
     }
+}
+
+/// What `taxel evaluate dynamics` measured.
+#[derive(Debug, Clone, Default)]
+pub struct DynamicSummary {
+    pub rows: Vec<dynamic::DynamicRow>,
+    pub real: Vec<dynamic_real::RealDynamicRow>,
+    /// Worlds not run, and why.
+    pub skipped: Vec<String>,
+}
+
+/// Runs the dynamic protocol on every family and seed and on world B; `progress(done, total,
+/// what)` after each step.
+pub fn run_dynamics(
+    o: &Options,
+    mut progress: impl FnMut(usize, usize, &str),
+) -> anyhow::Result<DynamicSummary> {
+    std::fs::create_dir_all(&o.out).map_err(|e| anyhow::anyhow!("{}: {e}", o.out.display()))?;
+    let families: Vec<&String> = o.families.iter().filter(|f| !f.trim().is_empty()).collect();
+    let total = families.len() * o.seeds.len() + 2;
+    let mut done = 0;
+    let mut s = DynamicSummary::default();
+    for f in families {
+        let index = FAMILIES.iter().position(|x| x == f).unwrap_or(0);
+        for &seed in &o.seeds {
+            progress(done, total, &format!("{f} seed {seed}"));
+            s.rows.push(dynamic::family(&o.out, f, index, seed)?);
+            done += 1;
+        }
+    }
+    progress(done, total, "world B");
+    let worldb = o.shared.as_ref().map(|s| s.join("worldb"));
+    match worldb.as_deref().filter(|d| d.is_dir()) {
+        Some(d) => s.rows.push(dynamic::world_b(d, &o.out.join("worldb"))?),
+        None => s.skipped.push(absent("world B", worldb.as_deref())),
+    }
+    progress(done + 1, total, "real recordings");
+    let real = o.shared.as_ref().map(|s| s.join("real"));
+    match real.as_deref().filter(|d| d.is_dir()) {
+        Some(d) => {
+            s.real = dynamic_real::tams(d)?;
+            s.real.extend(dynamic_real::lupasic(d)?);
+        }
+        None => s.skipped.push(absent("real recordings", real.as_deref())),
+    }
+    progress(total, total, "done");
+    Ok(s)
 }

@@ -90,7 +90,8 @@ pub fn markdown(s: &Summary, command: &str) -> String {
     m
 }
 
-fn num(x: f64) -> String {
+/// A JSON number, or null when not finite.
+pub(super) fn num(x: f64) -> String {
     if x.is_finite() {
         format!("{x:.6}")
     } else {
@@ -98,7 +99,8 @@ fn num(x: f64) -> String {
     }
 }
 
-fn text(s: &str) -> String {
+/// A JSON string.
+pub(super) fn text(s: &str) -> String {
     let mut o = String::from("\"");
     for c in s.chars() {
         match c {
