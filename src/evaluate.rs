@@ -1,9 +1,10 @@
-//! `taxel evaluate`: reproductions of the paper's results on the simulator.
+//! `taxel evaluate`: reproductions of the paper's results on the simulator, dispatched to the
+//! calibrator's offline evaluation (`taxel_calibrator::{table1, worlds}`).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use taxel_runtime::process::init_tracing;
+use taxel_runtime::process::{exit_code, init_tracing, Failure, ResultExt};
 
 /// The shipped curvature model (trained on the dataset whose first sensor is build 1001).
 const CURVATURE_MODEL: &[u8] = include_bytes!("../models/curvature-default.taxcrv");
@@ -13,9 +14,10 @@ pub enum Evaluate {
     /// The paper's Table I on simulated everyday objects: data, flat and curvature-aware
     /// calibrations, the table (Markdown) next to the paper's numbers, and plots.
     Table1 {
-        /// Output directory.
-        #[arg(long, default_value = "table1")]
-        out: PathBuf,
+        /// Output directory (default: a fresh directory under the system temp dir; the files
+        /// written are listed at the end).
+        #[arg(long)]
+        out: Option<PathBuf>,
         /// Seed of the calibration session and the object sessions.
         #[arg(long, default_value_t = 7)]
         seed: u64,
@@ -30,9 +32,9 @@ pub enum Evaluate {
     /// calibrations fitted, objects evaluated) on every simulator family with hold-out seeds,
     /// on world B and on the real recordings; every number per family (worlds.md, worlds.json).
     Worlds {
-        /// Output directory.
-        #[arg(long, default_value = "worlds")]
-        out: PathBuf,
+        /// Output directory (default: a fresh directory under the system temp dir, printed).
+        #[arg(long)]
+        out: Option<PathBuf>,
         /// Simulator families (taxel-sim presets), comma separated.
         #[arg(long, value_delimiter = ',', default_values_t = taxel_calibrator::worlds::FAMILIES.map(String::from))]
         families: Vec<String>,
@@ -53,9 +55,9 @@ pub enum Evaluate {
     /// on world B: the paper's objects held 15 s at 2-8 N in a warming hand, calibrated with and
     /// without the dynamic terms fitted on one characterisation recording (dynamics.md).
     Dynamics {
-        /// Output directory.
-        #[arg(long, default_value = "dynamics")]
-        out: PathBuf,
+        /// Output directory (default: a fresh directory under the system temp dir, printed).
+        #[arg(long)]
+        out: Option<PathBuf>,
         /// Simulator families (taxel-sim presets), comma separated.
         #[arg(long, value_delimiter = ',', default_values_t = taxel_calibrator::worlds::FAMILIES.map(String::from))]
         families: Vec<String>,
@@ -70,26 +72,30 @@ pub enum Evaluate {
 
 pub fn main(e: Evaluate) -> ExitCode {
     init_tracing("info");
-    match run(e) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!(
-                "taxel evaluate: error: {}",
-                format!("{e:#}").replace('\n', " ")
-            );
-            ExitCode::from(2)
-        }
-    }
+    exit_code("taxel evaluate", run(e))
 }
 
-fn run(e: Evaluate) -> anyhow::Result<()> {
+/// The output directory: the one named, else a fresh `taxel-<what>-<pid>` under the system temp
+/// dir (said on stderr).
+fn out_dir(named: Option<PathBuf>, what: &str) -> PathBuf {
+    named.unwrap_or_else(|| {
+        let d = std::env::temp_dir().join(format!("taxel-{what}-{}", std::process::id()));
+        eprintln!(
+            "taxel evaluate {what}: writing to {} (--out DIR to choose)",
+            d.display()
+        );
+        d
+    })
+}
+
+fn run(e: Evaluate) -> Result<(), Failure> {
     match e {
         Evaluate::Table1 {
             out,
             seed,
             curvature_model,
             build_seed,
-        } => table1(out, seed, curvature_model, build_seed),
+        } => table1(out_dir(out, "table1"), seed, curvature_model, build_seed),
         Evaluate::Worlds {
             out,
             families,
@@ -99,7 +105,7 @@ fn run(e: Evaluate) -> anyhow::Result<()> {
             json,
         } => worlds(
             taxel_calibrator::worlds::Options {
-                out,
+                out: out_dir(out, "worlds"),
                 families,
                 seeds,
                 shared: Some(shared),
@@ -113,7 +119,7 @@ fn run(e: Evaluate) -> anyhow::Result<()> {
             seeds,
             shared,
         } => dynamics(taxel_calibrator::worlds::Options {
-            out,
+            out: out_dir(out, "dynamics"),
             families,
             seeds,
             shared: Some(shared),
@@ -122,7 +128,7 @@ fn run(e: Evaluate) -> anyhow::Result<()> {
     }
 }
 
-fn dynamics(o: taxel_calibrator::worlds::Options) -> anyhow::Result<()> {
+fn dynamics(o: taxel_calibrator::worlds::Options) -> Result<(), Failure> {
     use taxel_calibrator::worlds;
     let mut bar = taxel_runtime::progress::Progress::new("dynamics", 1);
     let t0 = std::time::Instant::now();
@@ -130,7 +136,9 @@ fn dynamics(o: taxel_calibrator::worlds::Options) -> anyhow::Result<()> {
         bar.set_total(total as u64);
         bar.set(done as u64);
         tracing::info!("dynamics: {what} ({:.0} s)", t0.elapsed().as_secs_f64());
-    })?;
+    })
+    // As for worlds: bad input and failure alike exit 2, as before.
+    .config_err()?;
     bar.finish();
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let md = worlds::dynamics_markdown(&s, &command);
@@ -138,7 +146,8 @@ fn dynamics(o: taxel_calibrator::worlds::Options) -> anyhow::Result<()> {
     for (name, text) in [("dynamics.md", &md), ("dynamics.json", &js)] {
         let p = o.out.join(name);
         std::fs::write(&p, format!("{text}\n"))
-            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+            .runtime_err()?;
     }
     println!("{md}");
     println!(
@@ -149,7 +158,7 @@ fn dynamics(o: taxel_calibrator::worlds::Options) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn worlds(o: taxel_calibrator::worlds::Options, json: bool) -> anyhow::Result<()> {
+fn worlds(o: taxel_calibrator::worlds::Options, json: bool) -> Result<(), Failure> {
     use taxel_calibrator::worlds;
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let mut bar = taxel_runtime::progress::Progress::new("worlds", 1);
@@ -158,14 +167,18 @@ fn worlds(o: taxel_calibrator::worlds::Options, json: bool) -> anyhow::Result<()
         bar.set_total(total as u64);
         bar.set(done as u64);
         tracing::info!("worlds: {what} ({:.0} s)", t0.elapsed().as_secs_f64());
-    })?;
+    })
+    // The offline evaluation does not tell bad input from failure yet: exit 2 for both, as
+    // before.
+    .config_err()?;
     bar.finish();
     let md = worlds::markdown(&s, &command);
     let js = worlds::json(&s);
     for (name, text) in [("worlds.md", &md), ("worlds.json", &js)] {
         let p = o.out.join(name);
         std::fs::write(&p, format!("{text}\n"))
-            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+            .runtime_err()?;
     }
     if json {
         println!("{js}");
@@ -185,20 +198,24 @@ fn table1(
     seed: u64,
     curvature_model: Option<PathBuf>,
     build_seed: u64,
-) -> anyhow::Result<()> {
+) -> Result<(), Failure> {
     let model = match &curvature_model {
-        Some(p) => taxel_estimator::model::CurvatureModel::load(p)?,
+        Some(p) => taxel_estimator::model::CurvatureModel::load(p).config_err()?,
         None => {
-            taxel_estimator::model::CurvatureModel::from_bytes("shipped model", CURVATURE_MODEL)?
+            taxel_estimator::model::CurvatureModel::from_bytes("shipped model", CURVATURE_MODEL)
+                .runtime_err()?
         }
     };
     let mut sensor = taxel_sim::presets::preset("paper-dataset")
-        .ok_or_else(|| anyhow::anyhow!("missing preset"))?;
+        .ok_or_else(|| anyhow::anyhow!("missing preset"))
+        .runtime_err()?;
     sensor.spread.build_seed = Some(build_seed);
     let t0 = std::time::Instant::now();
     let t = taxel_calibrator::table1::run(&out, &model, &sensor, seed, |step| {
         eprintln!("table1: {step} ...");
-    })?;
+    })
+    // As for worlds: bad input and failure alike exit 2, as before.
+    .config_err()?;
     println!("{}", t.markdown);
     println!("done in {:.1} s; files:", t0.elapsed().as_secs_f64());
     for f in &t.files {

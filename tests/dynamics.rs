@@ -4,11 +4,7 @@
 //! calibrator's code, and judged by `eval` beside the same calibration without them, on a
 //! held-out session.
 
-mod common;
-
-use std::path::Path;
-
-use common::run;
+use taxel_testkit::{pipeline, Pipeline};
 
 /// A sensor that creeps 20 % under a held load (two time constants) and has a hysteresis loop
 /// (play operators on the local load).
@@ -21,7 +17,7 @@ enum Step {
     Triangle(f64, f64),
 }
 
-fn scenario(dir: &Path, name: &str, seed: u64, steps: &[Step]) -> String {
+fn scenario(p: &Pipeline, name: &str, seed: u64, steps: &[Step]) -> String {
     let mut s = format!(
         "name = \"{name}\"\nrate_hz = 100\nseed = {seed}\nmounting = {{ curvature_m1 = 0, rotation_deg = 0, flipped = false }}\n\n[[step]]\nkind = \"rest\"\nduration_s = 2.0\n"
     );
@@ -35,39 +31,36 @@ fn scenario(dir: &Path, name: &str, seed: u64, steps: &[Step]) -> String {
             ),
         });
     }
-    let scen = dir.join(format!("{name}.toml"));
+    let scen = p.path(&format!("{name}.toml"));
     std::fs::write(&scen, s).expect("write");
-    let out = dir.join(format!("{name}.csv.gz"));
-    let model = dir.join("model.toml");
-    let (code, _, err) = run(
-        "dyn",
-        &[
-            "publisher",
-            "--sensor",
-            "s0",
-            "sim",
-            "--scenario",
-            &scen.display().to_string(),
-            "--model",
-            &model.display().to_string(),
-            "--to-csv",
-            &out.display().to_string(),
-        ],
-    );
+    let out = p.path(&format!("{name}.csv.gz"));
+    let model = p.path("model.toml");
+    let (code, _, err) = p.run(&[
+        "publisher",
+        "--sensor",
+        "s0",
+        "sim",
+        "--scenario",
+        &scen.display().to_string(),
+        "--model",
+        &model.display().to_string(),
+        "--to-csv",
+        &out.display().to_string(),
+    ]);
     assert_eq!(code, 0, "{err}");
     out.display().to_string()
 }
 
 /// Fixture presses (1 s holds), a characterisation recording and a held-out session.
-fn recordings(dir: &Path) -> (String, String, String) {
-    std::fs::write(dir.join("model.toml"), SENSOR).expect("write");
+fn recordings(p: &Pipeline) -> (String, String, String) {
+    p.write("model.toml", SENSOR);
     let presses: Vec<Step> = [1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 10.0, 12.0, 15.0, 18.0, 20.0]
         .iter()
         .map(|&f| Step::Press(f, 1.0, 0.5))
         .collect();
-    let fixtures = scenario(dir, "fixtures", 11, &presses);
+    let fixtures = scenario(p, "fixtures", 11, &presses);
     let chars = scenario(
-        dir,
+        p,
         "characterisation",
         12,
         &[
@@ -80,7 +73,7 @@ fn recordings(dir: &Path) -> (String, String, String) {
         ],
     );
     let session = scenario(
-        dir,
+        p,
         "session",
         13,
         &[
@@ -93,23 +86,20 @@ fn recordings(dir: &Path) -> (String, String, String) {
 }
 
 /// `eval --curvature-m1 0 --levels 3,4,8 --json` of `cal` on `rec`.
-fn eval(cal: &str, rec: &str) -> serde_json::Value {
-    let (code, json, err) = run(
-        "dyn",
-        &[
-            "calibrator",
-            "eval",
-            "--curvature-m1",
-            "0",
-            "--calibration",
-            cal,
-            "--recording",
-            rec,
-            "--levels",
-            "3,4,8",
-            "--json",
-        ],
-    );
+fn eval(p: &Pipeline, cal: &str, rec: &str) -> serde_json::Value {
+    let (code, json, err) = p.run(&[
+        "calibrator",
+        "eval",
+        "--curvature-m1",
+        "0",
+        "--calibration",
+        cal,
+        "--recording",
+        rec,
+        "--levels",
+        "3,4,8",
+        "--json",
+    ]);
     assert_eq!(code, 0, "{err}");
     serde_json::from_str(&json).expect("json")
 }
@@ -135,23 +125,20 @@ fn assert_better_than_static(v: &serde_json::Value, drift_ratio: f64) {
 
 #[test]
 fn terms_fitted_on_holds_and_triangles_take_the_drift_out_of_a_held_out_session() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let (fixtures, chars, session) = recordings(dir.path());
-    let cal = dir.path().join("cal.toml").display().to_string();
-    let (code, stdout, err) = run(
-        "dyn",
-        &[
-            "calibrator",
-            "fit",
-            "--flat",
-            "--data",
-            &fixtures,
-            "--dynamics",
-            &chars,
-            "--out",
-            &cal,
-        ],
-    );
+    let p = pipeline!("dyn");
+    let (fixtures, chars, session) = recordings(&p);
+    let cal = p.path("cal.toml").display().to_string();
+    let (code, stdout, err) = p.run(&[
+        "calibrator",
+        "fit",
+        "--flat",
+        "--data",
+        &fixtures,
+        "--dynamics",
+        &chars,
+        "--out",
+        &cal,
+    ]);
     assert_eq!(code, 0, "{err}");
     let line = stdout
         .lines()
@@ -160,29 +147,26 @@ fn terms_fitted_on_holds_and_triangles_take_the_drift_out_of_a_held_out_session(
     assert!(line.contains("written ("), "{line}");
     let text = std::fs::read_to_string(&cal).expect("written");
     assert!(text.contains("creep = { tau_s = ["), "{text}");
-    assert_better_than_static(&eval(&cal, &session), 0.33);
+    assert_better_than_static(&eval(&p, &cal, &session), 0.33);
 }
 
 #[test]
 fn terms_taken_from_a_simulator_model_do_the_same() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let (fixtures, _, session) = recordings(dir.path());
-    let cal = dir.path().join("cal.toml").display().to_string();
-    let sim = dir.path().join("model.toml").display().to_string();
-    let (code, stdout, err) = run(
-        "dyn",
-        &[
-            "calibrator",
-            "fit",
-            "--flat",
-            "--data",
-            &fixtures,
-            "--dynamics-from",
-            &sim,
-            "--out",
-            &cal,
-        ],
-    );
+    let p = pipeline!("dyn");
+    let (fixtures, _, session) = recordings(&p);
+    let cal = p.path("cal.toml").display().to_string();
+    let sim = p.path("model.toml").display().to_string();
+    let (code, stdout, err) = p.run(&[
+        "calibrator",
+        "fit",
+        "--flat",
+        "--data",
+        &fixtures,
+        "--dynamics-from",
+        &sim,
+        "--out",
+        &cal,
+    ]);
     assert_eq!(code, 0, "{err}");
     assert!(
         stdout.contains("dynamic terms from the simulator model: force creep tau [3.0, 40.0] s"),
@@ -195,24 +179,21 @@ fn terms_taken_from_a_simulator_model_do_the_same() {
         2,
         "{text}"
     );
-    assert_better_than_static(&eval(&cal, &session), 0.33);
+    assert_better_than_static(&eval(&p, &cal, &session), 0.33);
     // A model without creep or hysteresis has nothing to give: refused, no file.
-    std::fs::write(dir.path().join("static.toml"), "").expect("write");
-    let none = dir.path().join("none.toml");
-    let (code, _, err) = run(
-        "dyn",
-        &[
-            "calibrator",
-            "fit",
-            "--flat",
-            "--data",
-            &fixtures,
-            "--dynamics-from",
-            &dir.path().join("static.toml").display().to_string(),
-            "--out",
-            &none.display().to_string(),
-        ],
-    );
+    std::fs::write(p.path("static.toml"), "").expect("write");
+    let none = p.path("none.toml");
+    let (code, _, err) = p.run(&[
+        "calibrator",
+        "fit",
+        "--flat",
+        "--data",
+        &fixtures,
+        "--dynamics-from",
+        &p.path("static.toml").display().to_string(),
+        "--out",
+        &none.display().to_string(),
+    ]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("neither creep nor hysteresis"), "{err}");
     assert!(!none.exists());

@@ -132,36 +132,33 @@ fn hot_paths_do_not_allocate() {
         "estimator allocated {n} times over {estimates} windows"
     );
 
-    // The logger's record encoding: a reused record, appended to a record file.
+    // The logger's record encoding: every payload, as the logger appends it from shared
+    // memory, into a record file.
     let dir = tempfile::tempdir().expect("tempdir");
     let mut w =
         taxel_formats::RecordFileWriter::create(&dir.path().join("a.taxrec")).expect("file");
-    let mut rec = taxel_formats::Record::Raw {
-        sensor: "s0".into(),
-        seq: 0,
-        t_capture_ns: 0,
-        rows: 4,
-        cols: 4,
-        flags: 0,
-        source: 1,
-        full_scale: 1023.0,
-        counts: Vec::with_capacity(16),
-    };
-    let fill = |rec: &mut taxel_formats::Record, i: u64| {
-        if let taxel_formats::Record::Raw { seq, counts, .. } = rec {
-            *seq = i;
-            counts.clear();
-            counts.extend_from_slice(&frame.counts[..16]);
-        }
+    frame.sensor = taxel_msgs::sensor_id_bytes("s0").expect("id");
+    (frame.source, frame.full_scale) = (1, 1023.0);
+    let mut force = out;
+    force.n_blocks = 2;
+    let mut reference = taxel_msgs::Reference::ZERO;
+    reference.trial = -1;
+    let mut append_all = |i: u64| {
+        frame.seq = i;
+        force.seq = i;
+        reference.seq = i;
+        est.seq = i;
+        w.append_message(&frame).expect("append");
+        w.append_message(&force).expect("append");
+        w.append_message(&reference).expect("append");
+        w.append_message(&est).expect("append");
     };
     for i in 0..100 {
-        fill(&mut rec, i);
-        w.append(&rec).expect("append");
+        append_all(i);
     }
     let n = allocations(|| {
         for i in 100..5100 {
-            fill(&mut rec, i);
-            w.append(&rec).expect("append");
+            append_all(i);
         }
     });
     assert_eq!(n, 0, "record encoding allocated {n} times");

@@ -3,6 +3,13 @@
 //! so a payload is defined exactly once (types defined per binary are refused by iceoryx2 as
 //! incompatible). Every payload is `#[repr(C)]`, `Copy`, fixed size, carries an explicit
 //! versioned type name, and has its size asserted next to it. Units are in the field names.
+//! Each payload's fields are listed once more, in `fields`: the table every file format
+//! (record file, MCAP JSON, CSV export) is derived from, checked by the compiler against the
+//! struct.
+
+pub mod fields;
+
+pub use fields::{Field, Message, Visitor};
 
 use iceoryx2::prelude::ZeroCopySend;
 
@@ -90,7 +97,7 @@ pub mod raw_flags {
 
 /// One scan of the array, stamped once at capture.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("taxel.RawFrame.v1")]
 pub struct RawFrame {
     /// Frame sequence number, consecutive per sensor; a jump means frames were lost.
@@ -154,7 +161,7 @@ pub mod curvature_flags {
 
 /// The mounting curvature and the no-load baseline it was derived from.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("taxel.CurvatureEstimate.v1")]
 pub struct CurvatureEstimate {
     /// `seq` of the last frame of the no-load window.
@@ -234,7 +241,7 @@ pub mod force_flags {
 
 /// Calibrated forces for one frame.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("taxel.ForceSample.v1")]
 pub struct ForceSample {
     /// `seq` of the raw frame, copied through.
@@ -295,7 +302,7 @@ impl ForceSample {
 /// runs carry the reference columns of the recording CSV schema. NaN marks a value the source
 /// does not know.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("taxel.Reference.v1")]
 pub struct Reference {
     pub seq: u64,
@@ -313,6 +320,19 @@ pub struct Reference {
     pub trial: i32,
 }
 const _: () = assert!(core::mem::size_of::<Reference>() == 8 * 2 + 32 + 8 + 4 * 4);
+
+impl Reference {
+    pub const ZERO: Reference = Reference {
+        seq: 0,
+        t_capture_ns: 0,
+        sensor: [0; SENSOR_ID_LEN],
+        t_source_s: 0.0,
+        force_n: 0.0,
+        curvature_m1: 0.0,
+        temp_c: 0.0,
+        trial: 0,
+    };
+}
 
 /// The streams of one sensor. Each is a publish-subscribe service paired with an event service
 /// of the same name that is notified after every send.

@@ -1,7 +1,13 @@
 //! taxel-testkit owns what the integration tests of several crates share: a child process
 //! (a taxel role, a bridge) whose stdout and stderr lines are collected as they arrive, waited
-//! on for a line or for its exit with a deadline, stopped with SIGINT as Ctrl-C would, and
-//! killed when the test ends early. Test support only; nothing here ships.
+//! on for a line (or its n-th occurrence) or for its exit with a deadline, stopped with SIGINT
+//! as Ctrl-C would, and killed when the test ends early; and the [`Pipeline`] fixture that
+//! every multi-process test starts its processes with (unique prefix, temporary directory,
+//! each role's start-up, teardown). Test support only; nothing here ships.
+
+mod pipeline;
+
+pub use pipeline::{replace, shm_files, unique_prefix, Pipeline, Role, LIMIT};
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, ExitStatus, Stdio};
@@ -89,6 +95,45 @@ impl Proc {
             );
             std::thread::sleep(Duration::from_millis(20));
         }
+    }
+
+    /// How many lines printed so far contain `needle`.
+    pub fn count(&mut self, needle: &str) -> usize {
+        self.pump();
+        self.seen.iter().filter(|l| l.contains(needle)).count()
+    }
+
+    /// Waits until `needle` has been printed at least `n` times; fails if the process exits
+    /// first or `limit` passes.
+    pub fn wait_count(&mut self, needle: &str, n: usize, limit: Duration) {
+        let t0 = Instant::now();
+        while self.count(needle) < n {
+            if let Ok(Some(st)) = self.child.try_wait() {
+                self.pump();
+                panic!(
+                    "{} exited ({st}) before printing {needle:?} {n} times:\n{}",
+                    self.name,
+                    self.seen.join("\n")
+                );
+            }
+            assert!(
+                t0.elapsed() < limit,
+                "{} did not print {needle:?} {n} times within {limit:?}:\n{}",
+                self.name,
+                self.seen.join("\n")
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// The last line printed so far that contains `needle` (empty when there is none).
+    pub fn last_line(&mut self, needle: &str) -> String {
+        self.pump();
+        self.seen
+            .iter()
+            .rfind(|l| l.contains(needle))
+            .cloned()
+            .unwrap_or_default()
     }
 
     /// Sends SIGINT (what Ctrl-C sends).

@@ -1,27 +1,32 @@
-//! `taxel bench`: latency of our pipeline against raw iceoryx2 and classic IPC, in one run, as
-//! separate processes with the same payload (a RawFrame, 4 160 bytes), at 1 kHz. Writes a
-//! Markdown table, one JSON object (`--json` on stdout) and a percentile plot.
+//! taxel-bench owns `taxel bench`, the latency harness (the criterion micro-benchmarks sit
+//! beside it, in `benches/`): latency of our pipeline against raw iceoryx2 and classic IPC, in
+//! one run, as separate processes with the same payload (a RawFrame, 4 160 bytes), at 1 kHz.
+//! Writes a Markdown table, one JSON object (`--json` on stdout) and a percentile plot. The
+//! processes are `taxel` roles and `taxel bench-peer` (`peers`, the socket baselines) started
+//! from the running executable, so this library only works inside the `taxel` launcher.
 
 pub mod peers;
+mod report;
 
 use std::io::Read;
 use std::path::PathBuf;
 use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
-use taxel_plot::{Chart, Mark, Series};
+use taxel_runtime::process::{exit_code, Failure, ResultExt};
 
 #[derive(Debug, clap::Args)]
-pub struct BenchArgs {
+pub struct Args {
     /// 3 s per case instead of 10 s.
     #[arg(long)]
     pub quick: bool,
     /// Print one JSON object on stdout (the table and plots are still written).
     #[arg(long)]
     pub json: bool,
-    /// Directory for bench.md, bench.json and the latency plots.
-    #[arg(long, default_value = "bench")]
-    pub out: PathBuf,
+    /// Directory for bench.md, bench.json and the latency plots (default: a fresh directory
+    /// under the system temp dir, printed).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
     /// Stream rate (Hz).
     #[arg(long, default_value_t = 1000.0)]
     pub rate_hz: f64,
@@ -34,6 +39,7 @@ pub struct BenchArgs {
     pub cases: Vec<String>,
 }
 
+/// One case's measurement.
 #[derive(Debug, Clone, Default)]
 struct CaseResult {
     case: String,
@@ -472,49 +478,41 @@ fn many(
     Ok(from_json(case, &json, &cpu))
 }
 
-fn machine() -> String {
-    let model = std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|c| {
-            c.lines()
-                .find(|l| l.starts_with("model name"))
-                .and_then(|l| l.split(':').nth(1))
-                .map(|m| m.trim().to_string())
-        })
-        .unwrap_or_else(|| "unknown CPU".into());
-    let kernel = std::fs::read_to_string("/proc/sys/kernel/osrelease")
-        .map(|k| k.trim().to_string())
-        .unwrap_or_default();
-    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
-    format!("{model}, {cores} cores, Linux {kernel}")
+pub fn main(a: Args) -> ExitCode {
+    exit_code("taxel bench", run(a))
 }
 
-pub fn main(a: BenchArgs) -> ExitCode {
-    match run(a) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!(
-                "taxel bench: error: {}",
-                format!("{e:#}").replace('\n', " ")
-            );
-            ExitCode::from(1)
-        }
+/// `taxel bench-peer`: one socket peer of a bench case.
+pub fn peer_main(a: peers::PeerArgs) -> ExitCode {
+    exit_code("taxel bench-peer", peers::run(&a).runtime_err())
+}
+
+fn run(a: Args) -> Result<(), Failure> {
+    let bad = |m: &str| Err(Failure::config(anyhow::anyhow!("{m}")));
+    if !(a.rate_hz.is_finite() && a.rate_hz > 0.0 && a.rate_hz <= 100_000.0) {
+        return bad("--rate-hz must be in (0, 100000]");
     }
-}
-
-fn run(a: BenchArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        a.rate_hz.is_finite() && a.rate_hz > 0.0 && a.rate_hz <= 100_000.0,
-        "--rate-hz must be in (0, 100000]"
-    );
     let secs = a.seconds.unwrap_or(if a.quick { 3.0 } else { 10.0 });
-    anyhow::ensure!(
-        secs.is_finite() && (0.2..=3600.0).contains(&secs),
-        "--seconds must be 0.2..=3600"
-    );
-    std::fs::create_dir_all(&a.out)?;
-    let cal = a.out.join("bench-calibration.toml");
-    std::fs::write(&cal, include_str!("../../calibrations/sim-default.toml"))?;
+    if !(secs.is_finite() && (0.2..=3600.0).contains(&secs)) {
+        return bad("--seconds must be 0.2..=3600");
+    }
+    let out = match &a.out {
+        Some(d) => d.clone(),
+        None => std::env::temp_dir().join(format!("taxel-bench-{}", std::process::id())),
+    };
+    std::fs::create_dir_all(&out)
+        .map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))
+        .config_err()?;
+    if a.out.is_none() {
+        eprintln!(
+            "taxel bench: writing to {} (--out DIR to choose)",
+            out.display()
+        );
+    }
+    let cal = out.join("bench-calibration.toml");
+    std::fs::write(&cal, include_str!("../../../calibrations/sim-default.toml"))
+        .map_err(|e| anyhow::anyhow!("{}: {e}", cal.display()))
+        .config_err()?;
     let cal_s = cal.display().to_string();
     let rate = a.rate_hz;
     let mut cases = Vec::new();
@@ -679,95 +677,27 @@ fn run(a: BenchArgs) -> anyhow::Result<()> {
         .find(|c| !steps.iter().any(|(name, _)| name == c))
     {
         let known: Vec<&str> = steps.iter().map(|(name, _)| *name).collect();
-        anyhow::bail!(
+        return Err(Failure::config(anyhow::anyhow!(
             "--cases: unknown case {bad:?} (known: {})",
             known.join(", ")
-        );
+        )));
     }
     for (i, (name, f)) in steps.iter().enumerate() {
         if !a.cases.is_empty() && !a.cases.iter().any(|c| c == name) {
             continue;
         }
         eprintln!("taxel bench: {name} ({secs} s at {rate} Hz) ...");
-        let mut c = f(i)?;
+        let mut c = f(i).runtime_err()?;
         if c.rate_hz == 0.0 {
             c.rate_hz = rate;
         }
         cases.push(c);
     }
-    let m = machine();
-    let mut md = format!(
-        "# taxel bench\n\n{m}; {rate} Hz, RawFrame payload ({} bytes), {secs} s per case, separate processes. Age = receive time - capture time (CLOCK_MONOTONIC); force paths are two hops.\n\n| case | rate (Hz) | received | dropped | p50 (us) | p90 (us) | p99 (us) | p99.9 (us) | max (us) | CPU of waiting processes (% core) | busiest process (% core) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
-        peers::MSG
-    );
-    for c in &cases {
-        md.push_str(&format!(
-            "| {} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
-            c.case,
-            c.rate_hz,
-            c.received,
-            c.dropped,
-            c.p50,
-            c.p90,
-            c.p99,
-            c.p999,
-            c.max,
-            c.cpu_pct,
-            c.cpu_pct_max_process
-        ));
-    }
-    let cases_json: Vec<String> = cases
-        .iter()
-        .map(|c| {
-            let num = |v: f64| if v.is_finite() { format!("{v:.1}") } else { "null".into() };
-            format!(
-                "{{\"case\": \"{}\", \"rate_hz\": {}, \"received\": {}, \"p50_us\": {}, \"p90_us\": {}, \"p99_us\": {}, \"p999_us\": {}, \"max_us\": {}, \"dropped\": {}, \"cpu_pct\": {}, \"cpu_pct_max_process\": {}}}",
-                c.case,
-                c.rate_hz,
-                num(c.received),
-                num(c.p50),
-                num(c.p90),
-                num(c.p99),
-                num(c.p999),
-                num(c.max),
-                num(c.dropped),
-                num(c.cpu_pct),
-                num(c.cpu_pct_max_process)
-            )
-        })
-        .collect();
-    let json = format!(
-        "{{\"machine\": \"{}\", \"rate_hz\": {rate}, \"seconds_per_case\": {secs}, \"cases\": [{}]}}",
-        m.replace('"', "'"),
-        cases_json.join(", ")
-    );
-    std::fs::write(a.out.join("bench.md"), &md)?;
-    std::fs::write(a.out.join("bench.json"), &json)?;
-    let series: Vec<Series> = cases
-        .iter()
-        .map(|c| Series {
-            name: c.case.clone(),
-            points: vec![(50.0, c.p50), (90.0, c.p90), (99.0, c.p99), (99.9, c.p999)],
-            mark: Mark::LinePoints,
-        })
-        .collect();
-    for ext in ["svg", "png"] {
-        taxel_plot::write(
-            &a.out.join(format!("latency.{ext}")),
-            &Chart {
-                title: format!("one-way latency percentiles at {rate} Hz"),
-                x_label: "percentile".into(),
-                y_label: "latency (us)".into(),
-                series: series.clone(),
-                x_range: Some((45.0, 100.5)),
-                y_range: None,
-            },
-        )?;
-    }
+    let (md, json) = report::write(&out, rate, secs, &cases)?;
     if a.json {
         println!("{json}");
     } else {
-        println!("{md}\nwritten to {}", a.out.display());
+        println!("{md}\nwritten to {}", out.display());
     }
     Ok(())
 }

@@ -13,14 +13,16 @@ use std::time::{Duration, Instant};
 
 use taxel_msgs::{force_flags, raw_flags, ForceSample, RawFrame, Stream};
 use taxel_runtime::ipc::{self, Ipc};
-use taxel_runtime::process::init_tracing;
+use taxel_runtime::process::{exit_code, init_tracing, Failure, ResultExt};
 use taxel_runtime::{now_ns, Shutdown};
 
-use crate::demo::{demo_pipeline, CURVATURE_MODEL, SIM_CALIBRATION};
+use crate::demo::{
+    check_glove, demo_pipeline, out_dir, write_file, CURVATURE_MODEL, SIM_CALIBRATION,
+};
 use crate::supervise::Supervisor;
 
 #[derive(Debug, clap::Args)]
-pub struct SoakArgs {
+pub struct Args {
     /// Length of the run (s).
     #[arg(long, default_value_t = 600.0)]
     pub seconds: f64,
@@ -194,15 +196,9 @@ fn edit_calibration(path: &Path, version: u32, rng: &mut Rng) -> anyhow::Result<
     Ok(())
 }
 
-pub fn main(a: SoakArgs) -> ExitCode {
+pub fn main(a: Args) -> ExitCode {
     init_tracing("info");
-    match run(a) {
-        Ok(code) => code,
-        Err(e) => {
-            eprintln!("taxel soak: error: {}", format!("{e:#}").replace('\n', " "));
-            ExitCode::from(2)
-        }
-    }
+    exit_code("taxel soak", run(a))
 }
 
 /// A SIGKILL the soak sent.
@@ -212,45 +208,31 @@ struct Kill {
     name: String,
 }
 
-fn run(a: SoakArgs) -> anyhow::Result<ExitCode> {
+fn run(a: Args) -> Result<(), Failure> {
     for (v, what) in [
         (a.seconds, "--seconds"),
         (a.kill_every, "--kill-every"),
         (a.edit_every, "--edit-every"),
     ] {
-        anyhow::ensure!(
-            v.is_finite() && v > 0.0,
-            "{what} must be a positive number, got {v}"
-        );
+        if !(v.is_finite() && v > 0.0) {
+            return Err(Failure::config(anyhow::anyhow!(
+                "{what} must be a positive number, got {v}"
+            )));
+        }
     }
-    anyhow::ensure!(
-        (1..=16).contains(&a.sensors),
-        "--sensors must be 1..=16, got {}",
-        a.sensors
-    );
-    anyhow::ensure!(
-        a.rate_hz.is_finite() && a.rate_hz > 0.0 && a.rate_hz <= 10_000.0,
-        "--rate-hz must be in (0, 10000], got {}",
-        a.rate_hz
-    );
-    ipc::config(&a.prefix).map_err(|e| anyhow::anyhow!("--prefix: {e}"))?;
-    let out = match &a.out {
-        Some(d) => d.clone(),
-        None => std::env::temp_dir().join(format!("taxel-soak-{}", std::process::id())),
-    };
-    std::fs::create_dir_all(&out).map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
+    check_glove(a.sensors, a.rate_hz, &a.prefix)?;
+    let out = out_dir(&a.out, "soak")?;
     let cal = out.join("calibration.toml");
-    std::fs::write(&cal, SIM_CALIBRATION).map_err(|e| anyhow::anyhow!("{}: {e}", cal.display()))?;
+    write_file(&cal, SIM_CALIBRATION.as_bytes())?;
     let model = out.join("curvature.taxcrv");
-    std::fs::write(&model, CURVATURE_MODEL)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))?;
+    write_file(&model, CURVATURE_MODEL)?;
     let recording = out.join("soak.taxrec");
     let mut pipeline = demo_pipeline(a.sensors, a.rate_hz, &cal, &model, &recording, &a.log);
     for c in &mut pipeline.controls {
         c.status = false;
     }
     let ids: Vec<String> = pipeline.sensors.iter().map(|s| s.id.clone()).collect();
-    let shutdown = Shutdown::install()?;
+    let shutdown = Shutdown::install().runtime_err()?;
     ipc::clean_dead_nodes(&a.prefix).ok();
 
     // The probe subscribes before anything publishes.
@@ -265,10 +247,10 @@ fn run(a: SoakArgs) -> anyhow::Result<ExitCode> {
     while !ready.load(Ordering::SeqCst) {
         if probe_thread.is_finished() || t_ready.elapsed() > Duration::from_secs(10) {
             stop.store(true, Ordering::SeqCst);
-            return match probe_thread.join() {
-                Ok(Err(e)) => Err(e.context("soak probe")),
-                _ => Err(anyhow::anyhow!("soak probe did not start within 10 s")),
-            };
+            return Err(Failure::runtime(match probe_thread.join() {
+                Ok(Err(e)) => e.context("soak probe"),
+                _ => anyhow::anyhow!("soak probe did not start within 10 s"),
+            }));
         }
         std::thread::sleep(Duration::from_millis(10));
     }
@@ -282,7 +264,8 @@ fn run(a: SoakArgs) -> anyhow::Result<ExitCode> {
         a.prefix,
         out.display()
     );
-    let mut sup = Supervisor::start(&a.prefix, &a.log, pipeline.policy(), pipeline.processes())?;
+    let mut sup = Supervisor::start(&a.prefix, &a.log, pipeline.policy(), pipeline.processes())
+        .runtime_err()?;
     let mut rng = Rng(a.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
     let t0 = Instant::now();
     let mut next_kill = Duration::from_secs_f64(a.kill_every);
@@ -331,8 +314,8 @@ fn run(a: SoakArgs) -> anyhow::Result<ExitCode> {
     let outcome = sup.stop();
     stop.store(true, Ordering::SeqCst);
     let logs = match probe_thread.join() {
-        Ok(r) => r.map_err(|e| e.context("soak probe"))?,
-        Err(_) => anyhow::bail!("soak probe panicked"),
+        Ok(r) => r.map_err(|e| e.context("soak probe")).runtime_err()?,
+        Err(_) => return Err(Failure::runtime(anyhow::anyhow!("soak probe panicked"))),
     };
     let (sm_line, sm_clean) = sup.shared_memory_report();
     let report = count(&ids, &logs, &sup, &kills);
@@ -403,11 +386,29 @@ fn run(a: SoakArgs) -> anyhow::Result<ExitCode> {
         );
         println!("{sm_line}");
     }
-    Ok(if all_ok {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::from(1)
-    })
+    if all_ok {
+        return Ok(());
+    }
+    let mut why = Vec::new();
+    if !outcome.all_ok {
+        why.push("a process did not end cleanly (see the summary)".to_string());
+    }
+    if !sm_clean {
+        why.push("iceoryx2 nodes are left under the prefix".to_string());
+    }
+    if report.lost > 0 {
+        why.push(format!(
+            "{} frame(s) lost outside the killed calibrator's downtime",
+            report.lost
+        ));
+    }
+    if edit_errors > 0 {
+        why.push(format!("{edit_errors} calibration edit(s) failed"));
+    }
+    Err(Failure::runtime(anyhow::anyhow!(
+        "the soak failed: {}",
+        why.join("; ")
+    )))
 }
 
 #[derive(Default)]

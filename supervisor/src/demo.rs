@@ -6,16 +6,16 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use taxel_runtime::ipc;
-use taxel_runtime::process::init_tracing;
+use taxel_runtime::process::{exit_code, init_tracing, Failure, ResultExt};
 use taxel_runtime::Shutdown;
 
 use crate::pipeline::{Control, Logger, Pipeline, Sensor, Source, Supervision};
 use crate::supervise::Supervisor;
 
 /// The shipped default calibration of the simulated sensor.
-pub const SIM_CALIBRATION: &str = include_str!("../calibrations/sim-default.toml");
+pub const SIM_CALIBRATION: &str = include_str!("../../calibrations/sim-default.toml");
 /// The shipped curvature model, trained on the simulator's paper-like dataset (seed 1).
-pub const CURVATURE_MODEL: &[u8] = include_bytes!("../models/curvature-default.taxcrv");
+pub const CURVATURE_MODEL: &[u8] = include_bytes!("../../models/curvature-default.taxcrv");
 /// Build seeds of the three sensors of that dataset: the demo's sensors are those builds.
 pub const DATASET_BUILDS: [u64; 3] = [1001, 1002, 1003];
 
@@ -24,7 +24,7 @@ const FINGERS: [&str; 5] = ["thumb", "index", "middle", "ring", "little"];
 const FINGER_CURVATURE_M1: [f64; 5] = [55.0, 45.0, 40.0, 50.0, 70.0];
 
 #[derive(Debug, clap::Args)]
-pub struct DemoArgs {
+pub struct Args {
     /// Number of simulated sensors; 5 is a glove (thumb .. little finger).
     #[arg(long, default_value_t = 1)]
     pub sensors: usize,
@@ -63,52 +63,63 @@ pub fn sensor_names(n: usize) -> Vec<(String, f64)> {
     }
 }
 
-pub fn main(a: DemoArgs) -> ExitCode {
+pub fn main(a: Args) -> ExitCode {
     init_tracing("info");
-    match run(a) {
-        Ok(code) => code,
-        Err(e) => {
-            eprintln!("taxel demo: error: {}", format!("{e:#}").replace('\n', " "));
-            ExitCode::from(2)
-        }
-    }
+    exit_code("taxel demo", run(a))
 }
 
-fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
-    anyhow::ensure!(
-        (1..=16).contains(&a.sensors),
-        "--sensors must be 1..=16, got {}",
-        a.sensors
-    );
-    anyhow::ensure!(
-        a.rate_hz.is_finite() && a.rate_hz > 0.0 && a.rate_hz <= 10_000.0,
-        "--rate-hz must be in (0, 10000], got {}",
-        a.rate_hz
-    );
-    if let Some(secs) = a.seconds {
-        anyhow::ensure!(
-            secs.is_finite() && secs > 0.0,
-            "--seconds must be a positive number"
-        );
+/// Checks the flags the demo and the soak share.
+pub fn check_glove(sensors: usize, rate_hz: f64, prefix: &str) -> Result<(), Failure> {
+    let bad = |m: String| Err(Failure::config(anyhow::anyhow!(m)));
+    if !(1..=16).contains(&sensors) {
+        return bad(format!("--sensors must be 1..=16, got {sensors}"));
     }
-    ipc::config(&a.prefix).map_err(|e| anyhow::anyhow!("--prefix: {e}"))?;
-    let out = match &a.out {
+    if !(rate_hz.is_finite() && rate_hz > 0.0 && rate_hz <= 10_000.0) {
+        return bad(format!("--rate-hz must be in (0, 10000], got {rate_hz}"));
+    }
+    ipc::config(prefix)
+        .map_err(|e| anyhow::anyhow!("--prefix: {e}"))
+        .config_err()?;
+    Ok(())
+}
+
+/// The output directory: the one named, else a fresh `taxel-<what>-<pid>` under the system
+/// temp dir; created.
+pub fn out_dir(named: &Option<PathBuf>, what: &str) -> Result<PathBuf, Failure> {
+    let out = match named {
         Some(d) => d.clone(),
-        None => std::env::temp_dir().join(format!("taxel-demo-{}", std::process::id())),
+        None => std::env::temp_dir().join(format!("taxel-{what}-{}", std::process::id())),
     };
-    std::fs::create_dir_all(&out).map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))?;
+    std::fs::create_dir_all(&out)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", out.display()))
+        .config_err()?;
+    Ok(out)
+}
+
+/// Writes `bytes` to `path` (a file of the output directory).
+pub fn write_file(path: &Path, bytes: &[u8]) -> Result<(), Failure> {
+    std::fs::write(path, bytes)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        .config_err()
+}
+
+fn run(a: Args) -> Result<(), Failure> {
+    check_glove(a.sensors, a.rate_hz, &a.prefix)?;
+    crate::up::check_seconds(a.seconds)?;
+    let out = out_dir(&a.out, "demo")?;
     let cal = out.join("calibration.toml");
     match &a.calibration {
-        Some(p) => std::fs::copy(p, &cal).map(|_| ()),
-        None => std::fs::write(&cal, SIM_CALIBRATION),
+        Some(p) => std::fs::copy(p, &cal)
+            .map(|_| ())
+            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+            .config_err()?,
+        None => write_file(&cal, SIM_CALIBRATION.as_bytes())?,
     }
-    .map_err(|e| anyhow::anyhow!("{}: {e}", cal.display()))?;
-    taxel_calibrator::calibration::Calibration::load(&cal)?;
+    taxel_calibrator::calibration::Calibration::load(&cal).config_err()?;
     let model = out.join("curvature.taxcrv");
-    std::fs::write(&model, CURVATURE_MODEL)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", model.display()))?;
+    write_file(&model, CURVATURE_MODEL)?;
     let recording = out.join("demo.taxrec");
-    let shutdown = Shutdown::install()?;
+    let shutdown = Shutdown::install().runtime_err()?;
     let pipeline = demo_pipeline(a.sensors, a.rate_hz, &cal, &model, &recording, &a.log);
     println!(
         "taxel demo: {} simulated sensor(s) at {} Hz, prefix {:?}\n  calibration {} (edit it: the calibrators reload it)\n  recording   {}\n  Ctrl-C stops{}",
@@ -119,18 +130,19 @@ fn run(a: DemoArgs) -> anyhow::Result<ExitCode> {
         recording.display(),
         a.seconds.map_or(String::new(), |s| format!(" (or after {s} s)"))
     );
-    let mut sup = Supervisor::start(&a.prefix, &a.log, pipeline.policy(), pipeline.processes())?;
+    let mut sup = Supervisor::start(&a.prefix, &a.log, pipeline.policy(), pipeline.processes())
+        .runtime_err()?;
     let until = a
         .seconds
         .map(|s| Instant::now() + Duration::from_secs_f64(s));
     sup.run(&shutdown, until, |_| {});
-    let code = crate::up::finish("demo", &mut sup);
+    let outcome = crate::up::finish("demo", &mut sup);
     println!(
         "  recording: {} (export: taxel logger export {} --csv out.csv)",
         recording.display(),
         recording.display()
     );
-    Ok(code)
+    outcome
 }
 
 /// The demo's pipeline: `n` simulated sensors (a glove for 5) with the shipped curvature model

@@ -1,75 +1,124 @@
 //! The logger's record file: an 8-byte magic `TAXELREC`, a little-endian u16 format version, a
 //! u16 reserved (0), then records, each framed as `u32 length | u32 CRC-32 of the payload |
-//! payload` (little endian), the payload a bincode 2 (serde, standard config) [`Record`]. A file
-//! cut off by a crash reads cleanly up to its last complete record: the reader reports where the
-//! incomplete tail starts instead of failing.
+//! payload` (little endian). Version 2 payloads are derived from the field tables of
+//! taxel-msgs (`binary`); version 1 files, whose payloads are a bincode 2 (serde) enum written
+//! out by hand, still read (`v1`). A file cut off by a crash reads cleanly up to its last
+//! complete record: the reader reports where the incomplete tail starts instead of failing.
+
+mod binary;
+mod v1;
+
+pub(crate) use v1::shape_of;
 
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
-use serde::{Deserialize, Serialize};
+use taxel_msgs::{
+    sensor_id_str, CurvatureEstimate, ForceSample, Message, RawFrame, Reference, Stream, Visitor,
+};
 
 use crate::crc::crc32;
 
 pub const MAGIC: &[u8; 8] = b"TAXELREC";
-pub const VERSION: u16 = 1;
+/// The format version this build writes.
+pub const VERSION: u16 = 2;
+/// The format versions this build reads.
+pub const READS: [u16; 2] = [1, 2];
 const HEADER_LEN: u64 = 12;
+/// What a payload decoder says when the payload has bytes past its last field.
+const TRAILING: &str = "trailing bytes";
 /// Largest payload a record may have; a larger length field means corruption.
 pub const MAX_RECORD: u32 = 1 << 20;
 
-/// One logged message. Field meanings and units are those of the shared-memory types in
-/// taxel-msgs (`RawFrame`, `CurvatureEstimate`, `ForceSample`, `Reference`); arrays hold only
-/// the meaningful entries.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+/// One logged message: a shared-memory payload of taxel-msgs as it was published (the large
+/// ones boxed). Only the meaningful entries of its arrays are stored in files.
+#[derive(Debug, Clone, PartialEq)]
 pub enum Record {
-    Raw {
-        sensor: String,
-        seq: u64,
-        t_capture_ns: u64,
-        rows: u16,
-        cols: u16,
-        flags: u32,
-        source: u32,
-        full_scale: f32,
-        counts: Vec<f32>,
-    },
-    Curvature {
-        sensor: String,
-        seq: u64,
-        t_capture_ns: u64,
-        t_window_start_ns: u64,
-        curvature_m1: f32,
-        curvature_sd_m1: f32,
-        model_version: u32,
-        flags: u32,
-        window_frames: u32,
-        baseline: Vec<f32>,
-    },
-    Force {
-        sensor: String,
-        seq: u64,
-        t_capture_ns: u64,
-        t_publish_ns: u64,
-        total_force_n: f32,
-        total_reading: f32,
-        curvature_m1: f32,
-        cal_version: u32,
-        cal_generation: u32,
-        flags: u32,
-        block_force_n: Vec<f32>,
-        block_reading: Vec<f32>,
-    },
-    Reference {
-        sensor: String,
-        seq: u64,
-        t_capture_ns: u64,
-        t_source_s: f64,
-        force_n: f32,
-        curvature_m1: f32,
-        temp_c: f32,
-        trial: i32,
-    },
+    Raw(Box<RawFrame>),
+    Curvature(Box<CurvatureEstimate>),
+    Force(ForceSample),
+    Reference(Reference),
+}
+
+impl Record {
+    /// The stream the payload travelled on.
+    pub fn stream(&self) -> Stream {
+        match self {
+            Record::Raw(_) => Stream::Raw,
+            Record::Curvature(_) => Stream::Curvature,
+            Record::Force(_) => Stream::Force,
+            Record::Reference(_) => Stream::Reference,
+        }
+    }
+
+    /// The schema name of the payload (`taxel.ForceSample`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            Record::Raw(_) => RawFrame::NAME,
+            Record::Curvature(_) => CurvatureEstimate::NAME,
+            Record::Force(_) => ForceSample::NAME,
+            Record::Reference(_) => Reference::NAME,
+        }
+    }
+
+    pub fn sensor(&self) -> &str {
+        sensor_id_str(match self {
+            Record::Raw(m) => &m.sensor,
+            Record::Curvature(m) => &m.sensor,
+            Record::Force(m) => &m.sensor,
+            Record::Reference(m) => &m.sensor,
+        })
+    }
+
+    pub fn seq(&self) -> u64 {
+        match self {
+            Record::Raw(m) => m.seq,
+            Record::Curvature(m) => m.seq,
+            Record::Force(m) => m.seq,
+            Record::Reference(m) => m.seq,
+        }
+    }
+
+    pub fn t_capture_ns(&self) -> u64 {
+        match self {
+            Record::Raw(m) => m.t_capture_ns,
+            Record::Curvature(m) => m.t_capture_ns,
+            Record::Force(m) => m.t_capture_ns,
+            Record::Reference(m) => m.t_capture_ns,
+        }
+    }
+
+    /// Visits the payload's fields (taxel-msgs `Message::visit`).
+    pub fn visit<V: Visitor>(&mut self, v: &mut V) {
+        match self {
+            Record::Raw(m) => m.visit(v),
+            Record::Curvature(m) => m.visit(v),
+            Record::Force(m) => m.visit(v),
+            Record::Reference(m) => m.visit(v),
+        }
+    }
+}
+
+impl From<RawFrame> for Record {
+    fn from(m: RawFrame) -> Record {
+        Record::Raw(Box::new(m))
+    }
+}
+impl From<CurvatureEstimate> for Record {
+    fn from(m: CurvatureEstimate) -> Record {
+        Record::Curvature(Box::new(m))
+    }
+}
+impl From<ForceSample> for Record {
+    fn from(m: ForceSample) -> Record {
+        Record::Force(m)
+    }
+}
+impl From<Reference> for Record {
+    fn from(m: Reference) -> Record {
+        Record::Reference(m)
+    }
 }
 
 /// Why a record file could not be opened or written.
@@ -82,7 +131,9 @@ pub enum RecordError {
     },
     #[error("{path}: not a taxel record file (bad magic at byte 0)")]
     BadMagic { path: PathBuf },
-    #[error("{path}: record file version {found} is not supported (this build reads {VERSION})")]
+    #[error(
+        "{path}: record file version {found} is not supported (this build reads versions 1 and 2)"
+    )]
     Version { path: PathBuf, found: u16 },
     #[error("cannot encode record: {0}")]
     Encode(String),
@@ -123,10 +174,19 @@ impl RecordFileWriter {
 
     /// Encodes and buffers one record (no allocation once the buffer has grown).
     pub fn append(&mut self, rec: &Record) -> Result<(), RecordError> {
+        match rec {
+            Record::Raw(m) => self.append_message(&**m),
+            Record::Curvature(m) => self.append_message(&**m),
+            Record::Force(m) => self.append_message(m),
+            Record::Reference(m) => self.append_message(m),
+        }
+    }
+
+    /// Encodes and buffers one payload as a record (no allocation once the buffer has grown).
+    pub fn append_message<M: Message>(&mut self, m: &M) -> Result<(), RecordError> {
         self.buf.clear();
         self.buf.extend_from_slice(&[0u8; 8]);
-        bincode::serde::encode_into_std_write(rec, &mut self.buf, bincode::config::standard())
-            .map_err(|e| RecordError::Encode(e.to_string()))?;
+        binary::encode(m, &mut self.buf).map_err(RecordError::Encode)?;
         let len = (self.buf.len() - 8) as u32;
         let crc = crc32(&self.buf[8..]);
         self.buf[..4].copy_from_slice(&len.to_le_bytes());
@@ -186,6 +246,7 @@ pub enum Tail {
 pub struct RecordFileReader {
     input: BufReader<File>,
     path: PathBuf,
+    version: u16,
     offset: u64,
     tail: Option<Tail>,
     buf: Vec<u8>,
@@ -219,7 +280,7 @@ impl RecordFileReader {
             });
         }
         let found = u16::from_le_bytes([header[8], header[9]]);
-        if found != VERSION {
+        if !READS.contains(&found) {
             return Err(RecordError::Version {
                 path: path.to_path_buf(),
                 found,
@@ -228,6 +289,7 @@ impl RecordFileReader {
         Ok(RecordFileReader {
             input,
             path: path.to_path_buf(),
+            version: found,
             offset: HEADER_LEN,
             tail: None,
             buf: Vec::new(),
@@ -238,6 +300,11 @@ impl RecordFileReader {
 
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// The file's format version.
+    pub fn version(&self) -> u16 {
+        self.version
     }
 
     /// How the file ended; `None` until the reader has reached the end.
@@ -314,15 +381,17 @@ impl RecordFileReader {
         if crc32(&self.buf) != crc {
             return self.stop("record checksum mismatch".into());
         }
-        let decoded =
-            bincode::serde::decode_from_slice::<Record, _>(&self.buf, bincode::config::standard());
+        let decoded = match self.version {
+            1 => v1::decode(&self.buf),
+            _ => binary::decode(&self.buf),
+        };
         match decoded {
-            Ok((rec, used)) if used == self.buf.len() => {
+            Ok(rec) => {
                 self.offset += 8 + len as u64;
                 self.records += 1;
                 Some(rec)
             }
-            Ok(_) => self.stop("record has trailing bytes".into()),
+            Err(e) if e == TRAILING => self.stop("record has trailing bytes".into()),
             Err(e) => self.stop(format!("record does not decode: {e}")),
         }
     }
@@ -340,17 +409,12 @@ mod tests {
     use super::*;
 
     fn raw(seq: u64) -> Record {
-        Record::Raw {
-            sensor: "s0".into(),
-            seq,
-            t_capture_ns: 1000 + seq,
-            rows: 2,
-            cols: 2,
-            flags: 0,
-            source: 1,
-            full_scale: 1023.0,
-            counts: vec![seq as f32, 1.0, 2.0, 3.0],
-        }
+        let mut f = RawFrame::ZERO;
+        f.sensor = taxel_msgs::sensor_id_bytes("s0").expect("id");
+        (f.seq, f.t_capture_ns, f.rows, f.cols) = (seq, 1000 + seq, 2, 2);
+        (f.source, f.full_scale) = (1, 1023.0);
+        f.counts[..4].copy_from_slice(&[seq as f32, 1.0, 2.0, 3.0]);
+        f.into()
     }
 
     #[test]
@@ -364,16 +428,16 @@ mod tests {
             w.flush().expect("flush");
             ends.push(w.committed_bytes());
         }
-        w.append(&Record::Reference {
-            sensor: "s0".into(),
+        w.append(&Record::Reference(Reference {
             seq: 50,
             t_capture_ns: 7,
+            sensor: taxel_msgs::sensor_id_bytes("s0").expect("id"),
             t_source_s: 0.1,
             force_n: 2.0,
             curvature_m1: 40.0,
             temp_c: 25.0,
             trial: 3,
-        })
+        }))
         .expect("append");
         let total = w.finish().expect("finish");
         let all: Vec<Record> = RecordFileReader::open(&path).expect("open").collect();

@@ -523,7 +523,7 @@ fn publisher_args(id: &str, src: &Source) -> Vec<String> {
 mod tests {
     use super::*;
 
-    const CAL: &str = include_str!("../calibrations/sim-default.toml");
+    const CAL: &str = include_str!("../../calibrations/sim-default.toml");
 
     fn write(dir: &Path, body: &str) -> PathBuf {
         std::fs::write(dir.join("cal.toml"), CAL).expect("cal");
