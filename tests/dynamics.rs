@@ -201,24 +201,21 @@ fn terms_taken_from_a_simulator_model_do_the_same() {
 
 #[test]
 fn evaluate_dynamics_reports_every_world_with_and_without_the_terms() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let out = dir.path().join("dyn");
-    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
-    let (code, stdout, err) = run(
-        "dynw",
-        &[
-            "evaluate",
-            "dynamics",
-            "--families",
-            "zoo-pow",
-            "--seeds",
-            "101",
-            "--shared",
-            &shared.display().to_string(),
-            "--out",
-            &out.display().to_string(),
-        ],
-    );
+    let p = pipeline!("dynw");
+    let out = p.path("dyn");
+    let shared = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    let (code, stdout, err) = p.run(&[
+        "evaluate",
+        "dynamics",
+        "--families",
+        "zoo-pow",
+        "--seeds",
+        "101",
+        "--shared",
+        &shared.display().to_string(),
+        "--out",
+        &out.display().to_string(),
+    ]);
     assert_eq!(code, 0, "{err}");
     assert!(stdout.contains("| zoo-pow | 101 |"), "{stdout}");
     let text = std::fs::read_to_string(out.join("dynamics.json")).expect("json written");
