@@ -64,6 +64,8 @@ pub struct Calibrator {
     dynamics: bool,
     /// Whether the dynamic states are known (see `DYNAMICS_WARMING`).
     warm: Warm,
+    /// Capture time of the end of the no-load window the zero in use came from.
+    zero_t_ns: Option<u64>,
 }
 
 /// What the calibrator knows of its dynamic states.
@@ -91,6 +93,7 @@ impl Calibrator {
             last_t_ns: None,
             dynamics: true,
             warm: Warm::Unchecked,
+            zero_t_ns: None,
         };
         c.refresh_base();
         c
@@ -138,6 +141,7 @@ impl Calibrator {
             .get_or_insert_with(|| Box::new([0.0; MAX_NODES]));
         b.copy_from_slice(&est.baseline);
         self.curvature = Some((est.curvature_m1, est.t_capture_ns, est.model_version));
+        self.zero_t_ns = Some(est.t_capture_ns);
         self.refresh_base();
         if self.dynamics {
             let cal = &self.loaded.calibration;
@@ -223,6 +227,9 @@ impl Calibrator {
             }
         };
         out.curvature_m1 = c as f32;
+        out.zero_age_s = self.zero_t_ns.map_or(f32::NAN, |t| {
+            (frame.t_capture_ns.saturating_sub(t) as f64 * 1e-9) as f32
+        });
         let n = frame.n_nodes();
         if self.baseline.is_none() {
             flags |= force_flags::NO_BASELINE;
@@ -497,6 +504,30 @@ mod tests {
                 out.flags & force_flags::DYNAMICS_WARMING
             })
             .collect()
+    }
+
+    #[test]
+    fn every_sample_says_how_old_its_zero_is() {
+        let text = "id = \"c\"\nversion = 1\nrows = 1\ncols = 1\nno_load_reading = [100]\n[array]\nname = \"array\"\nmodel = { form = \"poly\", terms = [{ s = 1, c = 0, coef = 0.01 }] }\nrange = { s = [0, 1000], curvature_m1 = [0, 80] }\n";
+        let cal = Calibration::from_toml_str("c.toml", text).expect("valid");
+        let mut c = Calibrator::for_calibration(cal, 60.0);
+        let mut frame = RawFrame::ZERO;
+        (frame.rows, frame.cols, frame.counts[0]) = (1, 1, 150.0);
+        let mut out = ForceSample::ZERO;
+        frame.t_capture_ns = 2_000_000_000;
+        c.apply(&frame, frame.t_capture_ns, &mut out);
+        // Counted from the file's no-load reading: no measured zero, no age.
+        assert!(
+            out.total_force_n.is_finite() && out.zero_age_s.is_nan(),
+            "{out:?}"
+        );
+        let mut est = CurvatureEstimate::ZERO;
+        (est.rows, est.cols, est.baseline[0]) = (1, 1, 101.0);
+        est.t_capture_ns = 2_500_000_000;
+        c.set_curvature(&est);
+        frame.t_capture_ns = 4_000_000_000;
+        c.apply(&frame, frame.t_capture_ns, &mut out);
+        assert!((out.zero_age_s - 1.5).abs() < 1e-6, "{}", out.zero_age_s);
     }
 
     #[test]

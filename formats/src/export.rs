@@ -371,6 +371,7 @@ mod tests {
                 "est_force_b0_n",
                 "est_force_b1_n",
                 "curvature_model_version",
+                "zero_age_s",
             ]
         );
     }

@@ -108,7 +108,7 @@ fn a_version_1_record_file_reads_as_it_was_written() {
 }
 
 #[test]
-fn the_csv_export_keeps_every_old_column_and_adds_the_curvature_model_version() {
+fn the_csv_export_keeps_every_old_column_and_adds_the_new_fields() {
     let (_, recs) = read_all(&data("v1.taxrec"));
     let mut export = CsvExport::new();
     for r in &recs {
@@ -122,13 +122,19 @@ fn the_csv_export_keeps_every_old_column_and_adds_the_curvature_model_version() 
     let now = std::fs::read_to_string(&out).expect("new csv");
     let (old, now): (Vec<&str>, Vec<&str>) = (old.lines().collect(), now.lines().collect());
     assert_eq!(old.len(), now.len());
-    assert_eq!(now[0], format!("{},curvature_model_version", old[0]));
+    assert_eq!(
+        now[0],
+        format!("{},curvature_model_version,zero_age_s", old[0])
+    );
     for (o, n) in old.iter().zip(&now).skip(1) {
-        let (head, last) = n.rsplit_once(',').expect("columns");
+        let (rest, age) = n.rsplit_once(',').expect("columns");
+        let (head, version) = rest.rsplit_once(',').expect("columns");
         assert_eq!(head, *o);
         // A frame with a force sample (cal_version, column 26, is set) says its model version
-        // (0: version 1 did not record it); one without has none.
+        // (0: version 1 did not record it); one without has none. Version 1 did not record the
+        // zero's age either: no value.
         let has_force = !o.split(',').nth(25).unwrap_or("").is_empty();
-        assert_eq!(last, if has_force { "0" } else { "" }, "{n}");
+        assert_eq!(version, if has_force { "0" } else { "" }, "{n}");
+        assert_eq!(age, "", "{n}");
     }
 }

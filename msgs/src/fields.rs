@@ -253,6 +253,8 @@ impl Message for ForceSample {
             n_blocks,
             block_force_n,
             block_reading,
+            zero_age_s,
+            reserved: _,
         } = self;
         v.sensor(&SENSOR, sensor);
         v.u64(&SEQ, seq);
@@ -315,6 +317,13 @@ impl Message for ForceSample {
                 "model_version of the curvature estimate used (0: configured or none)",
             ),
             curvature_model_version,
+        );
+        v.f32(
+            &field(
+                "zero_age_s",
+                "age of the no-load zero in use (s); NaN while it is the calibration file's",
+            ),
+            zero_age_s,
         );
     }
 }

@@ -242,7 +242,7 @@ pub mod force_flags {
 /// Calibrated forces for one frame.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("taxel.ForceSample.v1")]
+#[type_name("taxel.ForceSample.v2")]
 pub struct ForceSample {
     /// `seq` of the raw frame, copied through.
     pub seq: u64,
@@ -271,9 +271,15 @@ pub struct ForceSample {
     pub block_force_n: [f32; MAX_BLOCKS],
     /// Reading S per block (baseline-subtracted sum of counts).
     pub block_reading: [f32; MAX_BLOCKS],
+    /// Age of the no-load zero in use (s): this frame's capture time minus the end of the
+    /// no-load window the estimator published it from (every such window re-zeroes). NaN while
+    /// the zero is the calibration file's `no_load_reading` or there is none.
+    pub zero_age_s: f32,
+    /// Explicit padding (always 0) so the layout has no hidden bytes.
+    pub reserved: u32,
 }
 const _: () =
-    assert!(core::mem::size_of::<ForceSample>() == 8 * 3 + 32 + 4 * 8 + 4 * 2 * MAX_BLOCKS);
+    assert!(core::mem::size_of::<ForceSample>() == 8 * 3 + 32 + 4 * 8 + 4 * 2 * MAX_BLOCKS + 4 + 4);
 
 impl ForceSample {
     pub const ZERO: ForceSample = ForceSample {
@@ -291,6 +297,8 @@ impl ForceSample {
         n_blocks: 0,
         block_force_n: [0.0; MAX_BLOCKS],
         block_reading: [0.0; MAX_BLOCKS],
+        zero_age_s: f32::NAN,
+        reserved: 0,
     };
     pub fn blocks(&self) -> &[f32] {
         &self.block_force_n[..(self.n_blocks as usize).min(MAX_BLOCKS)]
@@ -425,7 +433,7 @@ mod tests {
         // SAFETY: type_name only returns the string given in the derive attribute.
         unsafe {
             assert_eq!(RawFrame::type_name(), "taxel.RawFrame.v1");
-            assert_eq!(ForceSample::type_name(), "taxel.ForceSample.v1");
+            assert_eq!(ForceSample::type_name(), "taxel.ForceSample.v2");
             assert_eq!(CurvatureEstimate::type_name(), "taxel.CurvatureEstimate.v1");
             assert_eq!(Reference::type_name(), "taxel.Reference.v1");
         }

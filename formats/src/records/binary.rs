@@ -255,6 +255,7 @@ mod tests {
         f.block_force_n[..2].copy_from_slice(&[1.0, f32::NAN]);
         f.block_reading[..2].copy_from_slice(&[100.0, 210.0]);
         f.curvature_model_version = 7;
+        f.zero_age_s = 12.5;
         f
     }
 
@@ -291,12 +292,21 @@ mod tests {
     fn a_field_an_older_writer_lacked_reads_as_zero_and_a_newer_ones_are_skipped() {
         let f = force();
         let full = encoded(&f);
-        // curvature_model_version (7, one varint byte) is the table's last field.
-        let mut older = full[..full.len() - 1].to_vec();
+        // zero_age_s (an f32, 4 bytes) is the table's last field, after
+        // curvature_model_version (7, one varint byte): a writer without either reads them as
+        // the empty sample's (NaN: no zero known; 0).
+        let mut older = full[..full.len() - 4].to_vec();
         older[1] -= 1;
         let mut want = f;
-        want.curvature_model_version = 0;
+        want.zero_age_s = f32::NAN;
         assert!(same(&decode(&older).expect("older"), &Record::Force(want)));
+        let mut oldest = full[..full.len() - 5].to_vec();
+        oldest[1] -= 2;
+        want.curvature_model_version = 0;
+        assert!(same(
+            &decode(&oldest).expect("oldest"),
+            &Record::Force(want)
+        ));
         // A newer writer's extra field after the known ones.
         let mut newer = full.clone();
         newer[1] += 1;
