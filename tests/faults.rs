@@ -472,3 +472,91 @@ fn a_bad_pipeline_file_is_refused_before_anything_starts() {
     assert!(err.contains("/nonexistent/pipeline.toml"), "{err}");
     assert_eq!(shm_files(&pl.prefix), Vec::<String>::new());
 }
+
+#[test]
+fn a_calibrator_with_dynamic_terms_restarted_after_kill_9_flags_its_state_until_it_is_known() {
+    // The shipped simulator calibration with creep and hysteresis terms on both blocks.
+    let terms = "creep = { tau_s = [0.5, 1.5], share = [0.02, 0.03], domain = \"force\" }\nhysteresis = { threshold_n = [0.2, 0.5], weight = [0.05, 0.05] }";
+    let mut cal = String::new();
+    for line in SIM_CAL.lines() {
+        cal.push_str(line);
+        cal.push('\n');
+        if line.starts_with("range = ") {
+            cal.push_str(terms);
+            cal.push('\n');
+        }
+    }
+    assert_eq!(cal.matches("hysteresis = ").count(), 2, "{cal}");
+    let mut p = pipeline!("fk");
+    p.write("cal.toml", &cal);
+    let pipeline = p.write(
+        "pipeline.toml",
+        r#"
+log = "info"
+[supervision]
+backoff_initial_ms = 100
+max_restarts = 3
+
+[[sensor]]
+id = "s0"
+calibration = "cal.toml"
+curvature_m1 = 40
+source = { kind = "sim", rate_hz = 200 }
+
+[logger]
+out = "run.taxrec"
+flush_ms = 100
+"#,
+    );
+    let limit = Duration::from_secs(20);
+    let up = p.spawn("up", &["up", &pipeline]);
+    let up = &mut p[up];
+    up.wait_for("calibrator ready", limit);
+    up.wait_for("first no-load baseline", limit);
+    std::thread::sleep(Duration::from_millis(2500));
+    let pid = current_pid(up, "calibrator-s0");
+    sigkill(pid);
+    up.wait_for("restarted calibrator-s0 pid", limit);
+    up.wait_count("calibrator ready", 2, limit);
+    std::thread::sleep(Duration::from_millis(4000));
+    up.sigint();
+    let st = up.wait_exit(Duration::from_secs(30));
+    assert!(st.success(), "taxel up exited {st}:\n{}", up.output());
+    let force: Vec<(u64, u32)> = read_records(&p.path("run.taxrec"))
+        .iter()
+        .filter_map(|r| match r {
+            Record::Force(f) => Some((f.seq, f.flags)),
+            _ => None,
+        })
+        .collect();
+    let warming = |f: &u32| f & force_flags::DYNAMICS_WARMING != 0;
+    // The replacement's first sample follows the gap (without a baseline until the estimate
+    // reaches it: NaN forces); from its first force on its state is flagged until the force
+    // has swept the plays, then never again.
+    let restart = force
+        .iter()
+        .rposition(|(_, f)| f & force_flags::GAP_BEFORE != 0)
+        .expect("the restarted calibrator's first sample");
+    let after: Vec<u32> = force[restart..]
+        .iter()
+        .map(|x| x.1)
+        .filter(|f| f & force_flags::NO_BASELINE == 0)
+        .collect();
+    assert!(
+        !after.is_empty() && warming(&after[0]),
+        "first force after the restart: {:#x?}",
+        after.first()
+    );
+    let known = after
+        .iter()
+        .position(|f| !warming(f))
+        .expect("the state became known after the restart");
+    assert!(
+        after[known..].iter().all(|f| !warming(f)),
+        "flagged again later"
+    );
+    eprintln!(
+        "after the restart: warming for {known} of {} samples",
+        after.len()
+    );
+}
