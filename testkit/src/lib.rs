@@ -182,8 +182,19 @@ impl Proc {
 }
 
 impl Drop for Proc {
+    /// A process still running (a failed test) gets SIGINT first, so a supervisor (`taxel up`,
+    /// `taxel demo`) stops its own children instead of leaving them running as orphans; after
+    /// 3 s it is killed.
     fn drop(&mut self) {
         if let Ok(None) = self.child.try_wait() {
+            self.sigint();
+            let t0 = Instant::now();
+            while t0.elapsed() < Duration::from_secs(3) {
+                if let Ok(Some(_)) = self.child.try_wait() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
             let _ = self.child.kill();
             let _ = self.child.wait();
         }
