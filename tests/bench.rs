@@ -22,6 +22,7 @@ fn bench_json_has_every_case() {
         "uds_block_2hop",
         "timer_wake_overshoot",
         "force_path_event",
+        "force_path_dynamic_event",
         "force_path_busy",
         "force_path_adaptive",
     ] {

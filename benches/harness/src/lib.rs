@@ -514,6 +514,16 @@ fn run(a: Args) -> Result<(), Failure> {
         .map_err(|e| anyhow::anyhow!("{}: {e}", cal.display()))
         .config_err()?;
     let cal_s = cal.display().to_string();
+    // The same calibration with every dynamic term on both blocks (bounded force creep of five
+    // time constants, six plays): the force path with the terms, beside the static one.
+    let dynamic = out.join("bench-calibration-dynamic.toml");
+    std::fs::write(
+        &dynamic,
+        with_dynamic_terms(include_str!("../../../calibrations/sim-default.toml")),
+    )
+    .map_err(|e| anyhow::anyhow!("{}: {e}", dynamic.display()))
+    .config_err()?;
+    let dynamic_s = dynamic.display().to_string();
     let rate = a.rate_hz;
     let mut cases = Vec::new();
     type Case = Box<dyn Fn(usize) -> anyhow::Result<CaseResult>>;
@@ -555,6 +565,13 @@ fn run(a: Args) -> Result<(), Failure> {
             Box::new({
                 let c = cal_s.clone();
                 move |n| force_path("force_path_event", "event", secs, rate, n, &c)
+            }),
+        ),
+        (
+            "force_path_dynamic_event",
+            Box::new({
+                let c = dynamic_s.clone();
+                move |n| force_path("force_path_dynamic_event", "event", secs, rate, n, &c)
             }),
         ),
         (
@@ -700,4 +717,18 @@ fn run(a: Args) -> Result<(), Failure> {
         println!("{md}\nwritten to {}", out.display());
     }
     Ok(())
+}
+
+/// `cal` with creep and hysteresis terms after every block's range line.
+fn with_dynamic_terms(cal: &str) -> String {
+    let terms = "creep = { tau_s = [0.5, 2, 8, 32, 128], share = [0.02, 0.04, 0.04, 0.03, 0.02], domain = \"force\", bounded = true }\nhysteresis = { threshold_n = [0.05, 0.15, 0.4, 0.8, 1.5, 2.5], weight = [0.05, 0.05, 0.1, 0.1, 0.05, 0.05] }\n";
+    let mut out = String::new();
+    for line in cal.lines() {
+        out.push_str(line);
+        out.push('\n');
+        if line.starts_with("range = ") {
+            out.push_str(terms);
+        }
+    }
+    out
 }
