@@ -188,6 +188,33 @@ impl Calibrator {
         self.refresh_base();
     }
 
+    /// What is known of the dynamic states at the first frame with a baseline (whole-array
+    /// reading `s`): the states start at rest, which is right for a sensor at rest, unless the
+    /// process was restarted (a remanence it cannot know) or the sensor is loaded (creep under
+    /// way). Then they are flagged until the longest creep time constant has passed and every
+    /// play has been swept (`dynamics::State::plays_known`).
+    fn start_warm(&self, s: f64, t_ns: u64) -> Warm {
+        let cal = &self.loaded.calibration;
+        if !self.dynamics || cal.all_blocks().all(|b| b.dynamics.is_static()) {
+            return Warm::Known;
+        }
+        let longest = cal
+            .all_blocks()
+            .map(|b| b.dynamics.longest_tau_s())
+            .fold(0.0, f64::max);
+        let hysteresis = cal.all_blocks().any(|b| b.dynamics.hysteresis.is_some());
+        let (range, _) = cal.array.ranges();
+        let loaded = s > range[0] + UNLOADED_SHARE * (range[1] - range[0]);
+        let restarted = taxel_runtime::process::restarted();
+        if loaded {
+            Warm::Until(t_ns + (longest * 1e9) as u64)
+        } else if restarted && hysteresis {
+            Warm::Until(t_ns)
+        } else {
+            Warm::Known
+        }
+    }
+
     pub fn calibration(&self) -> &Calibration {
         &self.loaded.calibration
     }
@@ -289,35 +316,6 @@ impl Calibrator {
             }
         }
         out.flags = flags;
-    }
-}
-
-impl Calibrator {
-    /// What is known of the dynamic states at the first frame with a baseline (whole-array
-    /// reading `s`): the states start at rest, which is right for a sensor at rest, unless the
-    /// process was restarted (a remanence it cannot know) or the sensor is loaded (creep under
-    /// way). Then they are flagged until the longest creep time constant has passed and every
-    /// play has been swept (`dynamics::State::plays_known`).
-    fn start_warm(&self, s: f64, t_ns: u64) -> Warm {
-        let cal = &self.loaded.calibration;
-        if !self.dynamics || cal.all_blocks().all(|b| b.dynamics.is_static()) {
-            return Warm::Known;
-        }
-        let longest = cal
-            .all_blocks()
-            .map(|b| b.dynamics.longest_tau_s())
-            .fold(0.0, f64::max);
-        let hysteresis = cal.all_blocks().any(|b| b.dynamics.hysteresis.is_some());
-        let (range, _) = cal.array.ranges();
-        let loaded = s > range[0] + UNLOADED_SHARE * (range[1] - range[0]);
-        let restarted = taxel_runtime::process::restarted();
-        if loaded {
-            Warm::Until(t_ns + (longest * 1e9) as u64)
-        } else if restarted && hysteresis {
-            Warm::Until(t_ns)
-        } else {
-            Warm::Known
-        }
     }
 }
 
