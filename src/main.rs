@@ -2,11 +2,10 @@
 //! (`taxel publisher ...`, `taxel calibrator ...`), so the root package alone can run
 //! everything; `demo`, `up` and `soak` run a pipeline under the supervisor (taxel-supervisor),
 //! `bench` is the latency harness (taxel-bench), `simcheck` the sim-vs-recording analysis
-//! (taxel-simcheck) and `evaluate` the calibrator's offline reproductions. Each command maps
+//! (taxel-simcheck) and `evaluate` (with `calibrator eval`) the offline evaluation
+//! (taxel-evaluation). Each command maps
 //! its result to the exit code itself (taxel-runtime's `exit_code`: 0 done, 1 runtime
 //! failure, 2 bad input).
-
-mod evaluate;
 
 use std::process::ExitCode;
 
@@ -33,13 +32,13 @@ enum Cmd {
     Soak(taxel_supervisor::soak::Args),
     /// Reproduce the paper's results on the simulator (`taxel evaluate table1`).
     #[command(subcommand)]
-    Evaluate(evaluate::Evaluate),
+    Evaluate(taxel_evaluation::cli::Evaluate),
     /// Publisher process: raw frames from the simulator or a recording.
     Publisher(taxel_publisher::cli::Args),
     /// Estimator process: no-load baselines and curvature.
     Estimator(taxel_estimator::cli::Args),
     /// Calibrator process and calibration tools.
-    Calibrator(taxel_calibrator::cli::Args),
+    Calibrator(CalibratorArgs),
     /// Example grip-force control loop.
     Control(taxel_consumers::control::Args),
     /// Logger: record streams, export recordings.
@@ -62,15 +61,39 @@ enum Cmd {
     BenchPeer(taxel_bench::peers::PeerArgs),
 }
 
+/// `taxel calibrator`: the calibrator's own subcommands (run, fit) and the offline protocol
+/// (eval), which runs the estimator's code beside the calibrator's and so lives in
+/// taxel-evaluation.
+#[derive(Debug, clap::Args)]
+struct CalibratorArgs {
+    #[command(flatten)]
+    common: taxel_runtime::process::CommonArgs,
+    #[command(subcommand)]
+    cmd: CalibratorCmd,
+}
+
+#[derive(Debug, Subcommand)]
+enum CalibratorCmd {
+    #[command(flatten)]
+    Process(taxel_calibrator::cli::Cmd),
+    /// The paper's protocol on an object recording: flat vs curvature-aware error per level.
+    Eval(taxel_evaluation::eval::EvalArgs),
+}
+
 fn main() -> ExitCode {
     match Cli::parse().cmd {
         Cmd::Demo(a) => taxel_supervisor::demo::main(a),
         Cmd::Up(a) => taxel_supervisor::up::main(a),
         Cmd::Soak(a) => taxel_supervisor::soak::main(a),
-        Cmd::Evaluate(e) => evaluate::main(e),
+        Cmd::Evaluate(e) => taxel_evaluation::cli::main(e),
         Cmd::Publisher(a) => taxel_publisher::cli::main(a),
         Cmd::Estimator(a) => taxel_estimator::cli::main(a),
-        Cmd::Calibrator(a) => taxel_calibrator::cli::main(a),
+        Cmd::Calibrator(CalibratorArgs { common, cmd }) => match cmd {
+            CalibratorCmd::Process(cmd) => {
+                taxel_calibrator::cli::main(taxel_calibrator::cli::Args { common, cmd })
+            }
+            CalibratorCmd::Eval(a) => taxel_evaluation::eval::main(&common.log, a),
+        },
         Cmd::Control(a) => taxel_consumers::control::main(a),
         Cmd::Logger(a) => taxel_consumers::logger::main(a),
         Cmd::Latency(a) => taxel_consumers::latency::main(a),

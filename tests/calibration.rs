@@ -87,7 +87,7 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
     let curve = taxel_calibrator::calibration::Calibration::load(&cal).expect("cal");
     let flat_cal = taxel_calibrator::calibration::Calibration::load(&flat).expect("flat");
     let report =
-        taxel_calibrator::evaluate::evaluate(&rec, g, &m, &curve, &flat_cal, &[2.0, 4.0, 6.0, 8.0])
+        taxel_evaluation::protocol::evaluate(&rec, g, &m, &curve, &flat_cal, &[2.0, 4.0, 6.0, 8.0])
             .expect("evaluate");
 
     // Live: the estimator with its defaults (every no-load window re-zeroes, the first one's
@@ -141,7 +141,7 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
     // The whole array is the headline; the central block is scored beside it.
     assert_eq!(report.blocks.len(), 2);
     let (array, center) = (&report.blocks[0].forces, &report.blocks[1].forces);
-    assert_eq!(report.headline, taxel_calibrator::evaluate::Headline::Array);
+    assert_eq!(report.headline, taxel_evaluation::protocol::Headline::Array);
     let mut compared = 0;
     assert!(windows.len() > 1, "the object's rests re-zero: {windows:?}");
     for (seq, (total, block)) in live.iter().filter(|(s, _)| !windows.contains(s)) {

@@ -1,5 +1,6 @@
-//! `taxel evaluate`: reproductions of the paper's results on the simulator, dispatched to the
-//! calibrator's offline evaluation (`taxel_calibrator::{table1, worlds}`).
+//! `taxel evaluate`: the paper's Table I on the simulator (`table1`), the generalisation check
+//! on every simulator family, world B and the real recordings (`worlds`), and the dynamic
+//! calibration on the same worlds (`dynamics`).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -7,7 +8,7 @@ use std::process::ExitCode;
 use taxel_runtime::process::{exit_code, init_tracing, Failure, ResultExt};
 
 /// The shipped curvature model (trained on the dataset whose first sensor is build 1001).
-const CURVATURE_MODEL: &[u8] = include_bytes!("../models/curvature-default.taxcrv");
+const CURVATURE_MODEL: &[u8] = include_bytes!("../../models/curvature-default.taxcrv");
 
 #[derive(Debug, clap::Subcommand)]
 pub enum Evaluate {
@@ -36,10 +37,10 @@ pub enum Evaluate {
         #[arg(long)]
         out: Option<PathBuf>,
         /// Simulator families (taxel-sim presets), comma separated.
-        #[arg(long, value_delimiter = ',', default_values_t = taxel_calibrator::worlds::FAMILIES.map(String::from))]
+        #[arg(long, value_delimiter = ',', default_values_t = crate::worlds::FAMILIES.map(String::from))]
         families: Vec<String>,
         /// Seeds of each family (default: the hold-out seeds, never tuned on), comma separated.
-        #[arg(long, value_delimiter = ',', default_values_t = taxel_calibrator::worlds::HOLDOUT_SEEDS)]
+        #[arg(long, value_delimiter = ',', default_values_t = crate::worlds::HOLDOUT_SEEDS)]
         seeds: Vec<u64>,
         /// Folder holding worldb/ and real/ (skipped with a note when absent).
         #[arg(long, default_value = "../shared/data")]
@@ -59,10 +60,10 @@ pub enum Evaluate {
         #[arg(long)]
         out: Option<PathBuf>,
         /// Simulator families (taxel-sim presets), comma separated.
-        #[arg(long, value_delimiter = ',', default_values_t = taxel_calibrator::worlds::FAMILIES.map(String::from))]
+        #[arg(long, value_delimiter = ',', default_values_t = crate::worlds::FAMILIES.map(String::from))]
         families: Vec<String>,
         /// Seeds of each family (default: the hold-out seeds, never tuned on), comma separated.
-        #[arg(long, value_delimiter = ',', default_values_t = taxel_calibrator::worlds::HOLDOUT_SEEDS)]
+        #[arg(long, value_delimiter = ',', default_values_t = crate::worlds::HOLDOUT_SEEDS)]
         seeds: Vec<u64>,
         /// Folder holding worldb/ (skipped with a note when absent).
         #[arg(long, default_value = "../shared/data")]
@@ -104,7 +105,7 @@ fn run(e: Evaluate) -> Result<(), Failure> {
             epochs,
             json,
         } => worlds(
-            taxel_calibrator::worlds::Options {
+            crate::worlds::Options {
                 out: out_dir(out, "worlds"),
                 families,
                 seeds,
@@ -118,7 +119,7 @@ fn run(e: Evaluate) -> Result<(), Failure> {
             families,
             seeds,
             shared,
-        } => dynamics(taxel_calibrator::worlds::Options {
+        } => dynamics(crate::worlds::Options {
             out: out_dir(out, "dynamics"),
             families,
             seeds,
@@ -128,8 +129,8 @@ fn run(e: Evaluate) -> Result<(), Failure> {
     }
 }
 
-fn dynamics(o: taxel_calibrator::worlds::Options) -> Result<(), Failure> {
-    use taxel_calibrator::worlds;
+fn dynamics(o: crate::worlds::Options) -> Result<(), Failure> {
+    use crate::worlds;
     let mut bar = taxel_runtime::progress::Progress::new("dynamics", 1);
     let t0 = std::time::Instant::now();
     let s = worlds::run_dynamics(&o, |done, total, what| {
@@ -158,8 +159,8 @@ fn dynamics(o: taxel_calibrator::worlds::Options) -> Result<(), Failure> {
     Ok(())
 }
 
-fn worlds(o: taxel_calibrator::worlds::Options, json: bool) -> Result<(), Failure> {
-    use taxel_calibrator::worlds;
+fn worlds(o: crate::worlds::Options, json: bool) -> Result<(), Failure> {
+    use crate::worlds;
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     let mut bar = taxel_runtime::progress::Progress::new("worlds", 1);
     let t0 = std::time::Instant::now();
@@ -211,7 +212,7 @@ fn table1(
         .runtime_err()?;
     sensor.spread.build_seed = Some(build_seed);
     let t0 = std::time::Instant::now();
-    let t = taxel_calibrator::table1::run(&out, &model, &sensor, seed, |step| {
+    let t = crate::table1::run(&out, &model, &sensor, seed, |step| {
         eprintln!("table1: {step} ...");
     })
     // As for worlds: bad input and failure alike exit 2, as before.

@@ -16,8 +16,8 @@ use taxel_formats::{Recording, RecordingWriter};
 use taxel_plot::{Chart, Mark, Series};
 use taxel_sim::{Mounting, Scenario, SensorModel, Simulator, Step, Tremor};
 
-use crate::evaluate::{evaluate, Headline, LevelResult, Report};
-use crate::fit::{fit_calibration, FitOptions};
+use crate::protocol::{evaluate, Headline, LevelResult, Report};
+use taxel_calibrator::fit::{fit_calibration, FitOptions};
 
 /// The paper's objects and their curvature (1/m).
 pub const OBJECTS: [(&str, f64); 5] = [
@@ -202,7 +202,7 @@ pub fn run(
         error_plot(&p, &reports)?;
         files.push(p);
         let p = out.join(format!("calibration-surface.{ext}"));
-        crate::plots::surface(&p, &curve)?;
+        taxel_calibrator::plots::surface(&p, &curve)?;
         files.push(p);
     }
     Ok(Table1 {

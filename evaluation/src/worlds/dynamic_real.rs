@@ -17,8 +17,8 @@ use std::path::Path;
 use taxel_formats::{ReadoutKind, Recording};
 
 use super::REAL_TRAIN_SHARE;
-use crate::evaluate::{evaluate_with, Curvature, Headline, Report};
-use crate::fit::{fit_calibration, with_dynamics, FitOptions};
+use crate::protocol::{evaluate_with, Curvature, Headline, Report};
+use taxel_calibrator::fit::{fit_calibration, with_dynamics, FitOptions};
 
 /// One real recording, with and without the terms.
 #[derive(Debug, Clone)]
@@ -68,7 +68,7 @@ fn spread(v: impl Iterator<Item = f32>) -> [f64; 3] {
 fn rel(f: impl Iterator<Item = f32>, reference: &[f64]) -> f64 {
     let (s, n) = f
         .zip(reference)
-        .filter(|(f, r)| f.is_finite() && **r >= crate::evaluate::OVERALL_MIN_N)
+        .filter(|(f, r)| f.is_finite() && **r >= crate::protocol::OVERALL_MIN_N)
         .fold((0.0, 0usize), |a, (f, r)| {
             (a.0 + (f64::from(f) - r).abs() / r, a.1 + 1)
         });
@@ -107,7 +107,10 @@ fn row(
     }
 }
 
-fn predict(test: &Recording, cal: &crate::calibration::Calibration) -> anyhow::Result<Report> {
+fn predict(
+    test: &Recording,
+    cal: &taxel_calibrator::calibration::Calibration,
+) -> anyhow::Result<Report> {
     let g = test.geometry(Some(cal.rows), Some(cal.cols))?;
     evaluate_with(
         test,

@@ -25,9 +25,9 @@ use taxel_estimator::model::CurvatureModel;
 use taxel_formats::{Geometry, Recording};
 use taxel_msgs::{sensor_id_bytes, source, CurvatureEstimate, ForceSample, RawFrame, MAX_NODES};
 
-use crate::calibration::Calibration;
 use crate::holds::Hold;
-use crate::run::Calibrator;
+use taxel_calibrator::calibration::Calibration;
+use taxel_calibrator::run::Calibrator;
 
 /// Tolerance around a level (N) and least window length (s), as in the paper.
 pub const LEVEL_TOLERANCE_N: f64 = 0.2;

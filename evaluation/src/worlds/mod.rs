@@ -73,8 +73,8 @@ impl ObjectsRow {
         world: &str,
         seed: Option<u64>,
         curvature: &taxel_estimator::model::Metrics,
-        reports: &[(String, f64, crate::evaluate::Report)],
-        cal: &crate::calibration::Calibration,
+        reports: &[(String, f64, crate::protocol::Report)],
+        cal: &taxel_calibrator::calibration::Calibration,
     ) -> ObjectsRow {
         let (flat_n, curve_n, worst_n) = crate::table1::averages(reports);
         ObjectsRow {
@@ -85,7 +85,7 @@ impl ObjectsRow {
             flat_n,
             curve_n,
             worst_n,
-            center: crate::table1::block_averages(reports, crate::evaluate::Headline::Center),
+            center: crate::table1::block_averages(reports, crate::protocol::Headline::Center),
             readout: cal.readout.to_string(),
             form: cal.array.model.name().to_string(),
         }

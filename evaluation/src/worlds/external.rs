@@ -7,9 +7,9 @@ use taxel_formats::Recording;
 
 use super::zoo::{curvature_metrics, train_curvature};
 use super::{ObjectsRow, RealRow, REAL_TRAIN_SHARE};
-use crate::evaluate::{evaluate, evaluate_with, Curvature, Headline};
-use crate::fit::{fit_calibration, FitOptions};
+use crate::protocol::{evaluate, evaluate_with, Curvature, Headline};
 use crate::table1::{LEVELS, OBJECTS};
+use taxel_calibrator::fit::{fit_calibration, FitOptions};
 
 /// World B with its README's protocol: the curvature model from `baselines_train`, tested on
 /// `baselines_test`; both calibrations from `calibration`; the five `object_*` recordings.
@@ -71,7 +71,7 @@ fn one_real(rec: &Recording, out: &Path) -> RealRow {
         mae_n: f64::NAN,
         frames: 0,
     };
-    let run = || -> anyhow::Result<(String, String, crate::evaluate::Overall)> {
+    let run = || -> anyhow::Result<(String, String, crate::protocol::Overall)> {
         let k = (rec.len() as f64 * REAL_TRAIN_SHARE) as usize;
         let (train, test) = (rec.slice(0..k), rec.slice(k..rec.len()));
         let g = rec

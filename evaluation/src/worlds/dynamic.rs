@@ -17,10 +17,10 @@ use std::path::Path;
 use taxel_formats::Recording;
 use taxel_sim::{Mounting, Scenario, SensorModel, Step, Tremor};
 
-use crate::calibration::Calibration;
-use crate::evaluate::{evaluate_with, Curvature, Headline, Report};
-use crate::fit::{fit_calibration, with_dynamics, FitOptions};
+use crate::protocol::{evaluate_with, Curvature, Headline, Report};
 use crate::table1::{fixture_scenario, simulate, OBJECTS};
+use taxel_calibrator::calibration::Calibration;
+use taxel_calibrator::fit::{fit_calibration, with_dynamics, FitOptions};
 
 /// The force levels of the dynamic protocol (N).
 pub const DYNAMIC_LEVELS: [f64; 6] = [2.0, 3.0, 4.0, 5.0, 6.0, 8.0];

@@ -7,8 +7,8 @@ use taxel_estimator::model::{CurvatureModel, Kind, Metrics, TrainOptions};
 use taxel_estimator::synth::{self, Spec, World};
 
 use super::ObjectsRow;
-use crate::calibration::Calibration;
 use crate::table1;
+use taxel_calibrator::calibration::Calibration;
 
 pub fn family(out: &Path, preset: &str, seed: u64, epochs: usize) -> anyhow::Result<ObjectsRow> {
     let mut sensor = taxel_sim::presets::preset(preset).ok_or_else(|| {
