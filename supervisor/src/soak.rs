@@ -19,7 +19,7 @@ use taxel_runtime::{now_ns, Shutdown};
 use crate::demo::{
     check_glove, demo_pipeline, out_dir, write_file, CURVATURE_MODEL, SIM_CALIBRATION,
 };
-use crate::supervise::Supervisor;
+use crate::supervise::{Outcome, Supervisor};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -237,10 +237,61 @@ fn run(a: Args) -> Result<(), Failure> {
 
     // The probe subscribes before anything publishes.
     let stop = Arc::new(AtomicBool::new(false));
+    let probe_thread = start_probe(&a.prefix, &ids, &stop)?;
+    eprintln!(
+        "taxel soak: {} sensor(s) at {} Hz for {} s, a random SIGKILL every {} s, calibration edits every ~{} s, prefix {:?}, files in {}",
+        ids.len(),
+        a.rate_hz,
+        a.seconds,
+        a.kill_every,
+        a.edit_every,
+        a.prefix,
+        out.display()
+    );
+    let mut sup = Supervisor::start(&a.prefix, &a.log, pipeline.policy(), pipeline.processes())
+        .runtime_err()?;
+    let mut chaos = Chaos::new(&a, &cal);
+    let until = chaos.t0 + Duration::from_secs_f64(a.seconds);
+    sup.run(&shutdown, Some(until), |sup| chaos.step(sup));
+    let outcome = sup.stop();
+    stop.store(true, Ordering::SeqCst);
+    let logs = match probe_thread.join() {
+        Ok(r) => r.map_err(|e| e.context("soak probe")).runtime_err()?,
+        Err(_) => return Err(Failure::runtime(anyhow::anyhow!("soak probe panicked"))),
+    };
+    let (sm_line, sm_clean) = sup.shared_memory_report();
+    let report = count(&ids, &logs, &sup, &chaos.kills);
+    let totals = Totals {
+        ids: &ids,
+        chaos: &chaos,
+        outcome: &outcome,
+        report: &report,
+        sm_clean,
+    };
+    if a.json {
+        println!("{}", totals.json(&a, &sup));
+    } else {
+        totals.print(&sup, &sm_line);
+    }
+    totals.verdict()
+}
+
+type ProbeThread = std::thread::JoinHandle<anyhow::Result<Vec<SensorLog>>>;
+
+/// Starts the probe thread and waits (at most 10 s) until it has subscribed to every sensor.
+fn start_probe(
+    prefix: &str,
+    ids: &[String],
+    stop: &Arc<AtomicBool>,
+) -> Result<ProbeThread, Failure> {
     let ready = Arc::new(AtomicBool::new(false));
     let probe_thread = {
-        let (prefix, ids, stop, ready) =
-            (a.prefix.clone(), ids.clone(), stop.clone(), ready.clone());
+        let (prefix, ids, stop, ready) = (
+            prefix.to_string(),
+            ids.to_vec(),
+            stop.clone(),
+            ready.clone(),
+        );
         std::thread::spawn(move || probe(&prefix, &ids, &stop, &ready))
     };
     let t_ready = Instant::now();
@@ -254,125 +305,167 @@ fn run(a: Args) -> Result<(), Failure> {
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-    eprintln!(
-        "taxel soak: {} sensor(s) at {} Hz for {} s, a random SIGKILL every {} s, calibration edits every ~{} s, prefix {:?}, files in {}",
-        ids.len(),
-        a.rate_hz,
-        a.seconds,
-        a.kill_every,
-        a.edit_every,
-        a.prefix,
-        out.display()
-    );
-    let mut sup = Supervisor::start(&a.prefix, &a.log, pipeline.policy(), pipeline.processes())
-        .runtime_err()?;
-    let mut rng = Rng(a.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
-    let t0 = Instant::now();
-    let mut next_kill = Duration::from_secs_f64(a.kill_every);
-    let mut next_edit = Duration::from_secs_f64(a.edit_every * (0.5 + rng.unit()));
-    let mut kills: Vec<Kill> = Vec::new();
-    let mut edits = 0u32;
-    let mut edit_errors = 0u32;
-    let until = t0 + Duration::from_secs_f64(a.seconds);
-    sup.run(&shutdown, Some(until), |sup| {
-        let el = t0.elapsed();
-        // No kill in the last 2 s: every victim is back before the stop.
-        let closing = el.as_secs_f64() > a.seconds - 2.0;
-        if el >= next_kill && !closing {
-            next_kill += Duration::from_secs_f64(a.kill_every);
-            let running: Vec<String> = sup
-                .slots
-                .iter()
-                .filter(|s| s.pid().is_some())
-                .map(|s| s.spec.name.clone())
-                .collect();
-            if !running.is_empty() {
-                let name = running[rng.below(running.len())].clone();
-                let at_ns = now_ns();
-                if let Some(pid) = sup.signal(&name, libc::SIGKILL) {
-                    eprintln!(
-                        "taxel soak: t={:.1} s SIGKILL {name} (pid {pid})",
-                        el.as_secs_f64()
-                    );
-                    kills.push(Kill {
-                        at_s: el.as_secs_f64(),
-                        at_ns,
-                        name,
-                    });
-                }
-            }
+    Ok(probe_thread)
+}
+
+/// What the soak does to the running pipeline: a SIGKILL to a random process every
+/// `--kill-every` seconds (none in the last 2 s, so every victim is back before the stop) and a
+/// calibration edit about every `--edit-every` seconds.
+struct Chaos<'a> {
+    cal: &'a Path,
+    seconds: f64,
+    kill_every: f64,
+    edit_every: f64,
+    rng: Rng,
+    t0: Instant,
+    next_kill: Duration,
+    next_edit: Duration,
+    kills: Vec<Kill>,
+    edits: u32,
+    edit_errors: u32,
+}
+
+impl<'a> Chaos<'a> {
+    fn new(a: &Args, cal: &'a Path) -> Self {
+        let mut rng = Rng(a.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
+        let next_edit = Duration::from_secs_f64(a.edit_every * (0.5 + rng.unit()));
+        Chaos {
+            cal,
+            seconds: a.seconds,
+            kill_every: a.kill_every,
+            edit_every: a.edit_every,
+            rng,
+            t0: Instant::now(),
+            next_kill: Duration::from_secs_f64(a.kill_every),
+            next_edit,
+            kills: Vec::new(),
+            edits: 0,
+            edit_errors: 0,
         }
-        if el >= next_edit {
-            next_edit += Duration::from_secs_f64(a.edit_every * (0.5 + rng.unit()));
-            edits += 1;
-            if let Err(e) = edit_calibration(&cal, edits + 1, &mut rng) {
-                edit_errors += 1;
+    }
+
+    /// Called by the supervisor on every turn of its loop.
+    fn step(&mut self, sup: &mut Supervisor) {
+        let el = self.t0.elapsed();
+        let closing = el.as_secs_f64() > self.seconds - 2.0;
+        if el >= self.next_kill && !closing {
+            self.next_kill += Duration::from_secs_f64(self.kill_every);
+            self.kill_one(sup, el);
+        }
+        if el >= self.next_edit {
+            self.next_edit += Duration::from_secs_f64(self.edit_every * (0.5 + self.rng.unit()));
+            self.edits += 1;
+            if let Err(e) = edit_calibration(self.cal, self.edits + 1, &mut self.rng) {
+                self.edit_errors += 1;
                 eprintln!("taxel soak: calibration edit failed: {e:#}");
             }
         }
-    });
-    let outcome = sup.stop();
-    stop.store(true, Ordering::SeqCst);
-    let logs = match probe_thread.join() {
-        Ok(r) => r.map_err(|e| e.context("soak probe")).runtime_err()?,
-        Err(_) => return Err(Failure::runtime(anyhow::anyhow!("soak probe panicked"))),
-    };
-    let (sm_line, sm_clean) = sup.shared_memory_report();
-    let report = count(&ids, &logs, &sup, &kills);
-    let all_ok = outcome.all_ok && sm_clean && report.lost == 0 && edit_errors == 0;
-    let peaks: Vec<String> = sup
-        .slots
-        .iter()
-        .map(|s| format!("\"{}\": {:.1}", s.spec.name, s.peak_kib as f64 / 1024.0))
-        .collect();
-    let restarts: Vec<String> = sup
-        .slots
-        .iter()
-        .filter(|s| s.restarts > 0 || !s.deaths.is_empty())
-        .map(|s| format!("\"{}\": {}", s.spec.name, s.restarts))
-        .collect();
-    let kill_list: Vec<String> = kills
-        .iter()
-        .map(|k| format!("{{\"t_s\": {:.1}, \"process\": \"{}\"}}", k.at_s, k.name))
-        .collect();
-    let flags: Vec<String> = report
-        .flag_counts
-        .iter()
-        .map(|(k, v)| format!("\"{k}\": {v}"))
-        .collect();
-    if a.json {
-        println!(
-            "{{\"seconds\": {:.1}, \"sensors\": {}, \"rate_hz\": {}, \"kills\": [{}], \"restarts\": {{{}}}, \"calibration_edits\": {edits}, \"published\": {}, \"delivered\": {}, \"flagged\": {}, \"flags\": {{{}}}, \"lost\": {}, \"lost_in_downtime\": {}, \"probe_missed\": {}, \"raw_probe_missed\": {}, \"raw_gap_flags\": {}, \"peak_rss_mb\": {{{}}}, \"exit_ok\": {}, \"shm_clean\": {sm_clean}}}",
-            t0.elapsed().as_secs_f64(),
-            ids.len(),
+    }
+
+    fn kill_one(&mut self, sup: &mut Supervisor, el: Duration) {
+        let running: Vec<String> = sup
+            .slots
+            .iter()
+            .filter(|s| s.pid().is_some())
+            .map(|s| s.spec.name.clone())
+            .collect();
+        if running.is_empty() {
+            return;
+        }
+        let name = running[self.rng.below(running.len())].clone();
+        let at_ns = now_ns();
+        if let Some(pid) = sup.signal(&name, libc::SIGKILL) {
+            eprintln!(
+                "taxel soak: t={:.1} s SIGKILL {name} (pid {pid})",
+                el.as_secs_f64()
+            );
+            self.kills.push(Kill {
+                at_s: el.as_secs_f64(),
+                at_ns,
+                name,
+            });
+        }
+    }
+}
+
+/// Everything the soak's report says.
+struct Totals<'a> {
+    ids: &'a [String],
+    chaos: &'a Chaos<'a>,
+    outcome: &'a Outcome,
+    report: &'a Report,
+    sm_clean: bool,
+}
+
+impl Totals<'_> {
+    fn peaks(sup: &Supervisor) -> Vec<String> {
+        sup.slots
+            .iter()
+            .map(|s| format!("\"{}\": {:.1}", s.spec.name, s.peak_kib as f64 / 1024.0))
+            .collect()
+    }
+
+    fn flags(&self) -> Vec<String> {
+        self.report
+            .flag_counts
+            .iter()
+            .map(|(k, v)| format!("\"{k}\": {v}"))
+            .collect()
+    }
+
+    /// The `--json` object.
+    fn json(&self, a: &Args, sup: &Supervisor) -> String {
+        let (report, chaos) = (self.report, self.chaos);
+        let restarts: Vec<String> = sup
+            .slots
+            .iter()
+            .filter(|s| s.restarts > 0 || !s.deaths.is_empty())
+            .map(|s| format!("\"{}\": {}", s.spec.name, s.restarts))
+            .collect();
+        let kill_list: Vec<String> = chaos
+            .kills
+            .iter()
+            .map(|k| format!("{{\"t_s\": {:.1}, \"process\": \"{}\"}}", k.at_s, k.name))
+            .collect();
+        format!(
+            "{{\"seconds\": {:.1}, \"sensors\": {}, \"rate_hz\": {}, \"kills\": [{}], \"restarts\": {{{}}}, \"calibration_edits\": {}, \"published\": {}, \"delivered\": {}, \"flagged\": {}, \"flags\": {{{}}}, \"lost\": {}, \"lost_in_downtime\": {}, \"probe_missed\": {}, \"raw_probe_missed\": {}, \"raw_gap_flags\": {}, \"peak_rss_mb\": {{{}}}, \"exit_ok\": {}, \"shm_clean\": {}}}",
+            chaos.t0.elapsed().as_secs_f64(),
+            self.ids.len(),
             a.rate_hz,
             kill_list.join(", "),
             restarts.join(", "),
+            chaos.edits,
             report.published,
             report.delivered,
             report.flagged,
-            flags.join(", "),
+            self.flags().join(", "),
             report.lost,
             report.lost_in_downtime,
             report.probe_missed,
             report.raw_probe_missed,
             report.raw_gap_flags,
-            peaks.join(", "),
-            outcome.all_ok,
-        );
-    } else {
+            Self::peaks(sup).join(", "),
+            self.outcome.all_ok,
+            self.sm_clean,
+        )
+    }
+
+    /// The human-readable report.
+    fn print(&self, sup: &Supervisor, sm_line: &str) {
+        let (report, chaos) = (self.report, self.chaos);
         println!(
-            "taxel soak after {:.1} s: {} kill(s), {} restart(s), {edits} calibration edit(s)",
-            t0.elapsed().as_secs_f64(),
-            kills.len(),
-            outcome.restarts
+            "taxel soak after {:.1} s: {} kill(s), {} restart(s), {} calibration edit(s)",
+            chaos.t0.elapsed().as_secs_f64(),
+            chaos.kills.len(),
+            self.outcome.restarts,
+            chaos.edits
         );
         println!(
             "  frames published {} | delivered {} | flagged {} ({}) | lost {} (+ {} during the killed calibrator's downtime) | sent but missed by the probe {}",
             report.published,
             report.delivered,
             report.flagged,
-            flags.join(", "),
+            self.flags().join(", "),
             report.lost,
             report.lost_in_downtime,
             report.probe_missed
@@ -382,33 +475,40 @@ fn run(a: Args) -> Result<(), Failure> {
         }
         println!(
             "  peak memory (VmHWM, MB): {}",
-            peaks.join(", ").replace('"', "")
+            Self::peaks(sup).join(", ").replace('"', "")
         );
         println!("{sm_line}");
     }
-    if all_ok {
-        return Ok(());
+
+    /// Passed, or why not.
+    fn verdict(&self) -> Result<(), Failure> {
+        let mut why = Vec::new();
+        if !self.outcome.all_ok {
+            why.push("a process did not end cleanly (see the summary)".to_string());
+        }
+        if !self.sm_clean {
+            why.push("iceoryx2 nodes are left under the prefix".to_string());
+        }
+        if self.report.lost > 0 {
+            why.push(format!(
+                "{} frame(s) lost outside the killed calibrator's downtime",
+                self.report.lost
+            ));
+        }
+        if self.chaos.edit_errors > 0 {
+            why.push(format!(
+                "{} calibration edit(s) failed",
+                self.chaos.edit_errors
+            ));
+        }
+        if why.is_empty() {
+            return Ok(());
+        }
+        Err(Failure::runtime(anyhow::anyhow!(
+            "the soak failed: {}",
+            why.join("; ")
+        )))
     }
-    let mut why = Vec::new();
-    if !outcome.all_ok {
-        why.push("a process did not end cleanly (see the summary)".to_string());
-    }
-    if !sm_clean {
-        why.push("iceoryx2 nodes are left under the prefix".to_string());
-    }
-    if report.lost > 0 {
-        why.push(format!(
-            "{} frame(s) lost outside the killed calibrator's downtime",
-            report.lost
-        ));
-    }
-    if edit_errors > 0 {
-        why.push(format!("{edit_errors} calibration edit(s) failed"));
-    }
-    Err(Failure::runtime(anyhow::anyhow!(
-        "the soak failed: {}",
-        why.join("; ")
-    )))
 }
 
 #[derive(Default)]
