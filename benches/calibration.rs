@@ -94,6 +94,32 @@ range = { s = [0, 1250], curvature_m1 = [0, 100] }
             })
         },
     );
+    // Every dynamic term on, each block: bounded force creep with five time constants and
+    // six plays, on frames whose load sweeps up and down (so the plays move), 10 ms apart.
+    let terms = "creep = { tau_s = [0.5, 2, 8, 32, 128], share = [0.02, 0.04, 0.04, 0.03, 0.02], domain = \"force\", bounded = true }\nhysteresis = { threshold_n = [0.05, 0.15, 0.4, 0.8, 1.5, 2.5], weight = [0.05, 0.05, 0.1, 0.1, 0.05, 0.05] }";
+    let mut dynamic = calibrator(&MONOTONE.replace(range, &format!("{range}\n{terms}")));
+
+    // The 16 readings of each step of the sweep (a whole RawFrame is 4 KB: copying one per
+    // iteration would cost more than the calibration).
+    let sweep: Vec<[f32; 16]> = (0..200)
+        .map(|k| {
+            let share = 1.0 - (k as f32 - 100.0).abs() / 100.0;
+            std::array::from_fn(|n| 110.0 + (frame.counts[n] - 110.0) * (0.1 + 0.9 * share))
+        })
+        .collect();
+    let mut g = frame;
+    let mut k = 0usize;
+    c.bench_function(
+        "calibration/apply monotone form, divider readout, creep + hysteresis (2 blocks)",
+        |b| {
+            b.iter(|| {
+                g.counts[..16].copy_from_slice(&sweep[k % sweep.len()]);
+                k += 1;
+                g.t_capture_ns += 10_000_000;
+                dynamic.apply(black_box(&g), 0, black_box(&mut out))
+            })
+        },
+    );
 }
 
 criterion_group!(benches, bench);

@@ -4,36 +4,12 @@
 //! error naming the file (and the position where the parser knows it), and picks up the next
 //! good file. The logger's record of the force stream is the evidence.
 
-mod common;
-
 use std::time::Duration;
 
-use common::{spawn_calibrator, spawn_logger, spawn_ready, unique_prefix, Proc};
 use taxel_formats::{Record, RecordFileReader};
+use taxel_testkit::{pipeline, replace, Pipeline};
 
 const SIM_CAL: &str = include_str!("../calibrations/sim-default.toml");
-
-fn count(p: &mut Proc, needle: &str) -> usize {
-    p.pump();
-    p.seen.iter().filter(|l| l.contains(needle)).count()
-}
-
-/// Waits until `needle` has been printed `n` times.
-fn wait_count(p: &mut Proc, needle: &str, n: usize) {
-    let t0 = std::time::Instant::now();
-    while count(p, needle) < n {
-        let out = p.output();
-        assert!(
-            t0.elapsed() < Duration::from_secs(20),
-            "{}: {needle:?} not seen {n} times:\n{out}",
-            p.name
-        );
-        if let Ok(Some(st)) = p.child.try_wait() {
-            panic!("{} exited ({st}):\n{out}", p.name);
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    }
-}
 
 fn good(version: u32) -> String {
     SIM_CAL.replacen("version = 1", &format!("version = {version}"), 1)
@@ -60,38 +36,20 @@ fn nan_filled() -> String {
         .join("\n")
 }
 
-/// Replaces the file atomically (write a temporary, rename over), as editors and deploy tools do.
-fn replace(path: &std::path::Path, bytes: &[u8]) {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes).expect("write temporary");
-    std::fs::rename(&tmp, path).expect("rename");
-}
-
 #[test]
 fn calibrator_keeps_serving_through_bad_calibration_files() {
-    let prefix = unique_prefix("bf");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let cal = dir.path().join("cal.toml");
-    std::fs::write(&cal, good(1)).expect("write calibration");
-    let rec = dir.path().join("run.taxrec");
-    let (cal_s, rec_s) = (cal.display().to_string(), rec.display().to_string());
+    let mut p = pipeline!("bf");
+    let cal_s = p.write("cal.toml", good(1));
+    let cal = p.path("cal.toml");
+    let rec = p.path("run.taxrec");
+    let rec_s = p.arg("run.taxrec");
     let limit = Duration::from_secs(20);
 
-    let mut logger = spawn_logger(&prefix, "s0", &rec_s);
-    let mut calibrator = spawn_calibrator(&prefix, "s0", &cal_s);
-    let mut estimator = spawn_ready(
-        "estimator",
-        &prefix,
-        &["estimator", "run", "--sensor", "s0", "--curvature-m1", "30"],
-        "estimator ready",
-    );
-    let mut publisher = spawn_ready(
-        "publisher",
-        &prefix,
-        &["publisher", "--sensor", "s0", "sim", "--rate-hz", "500"],
-        "publisher ready",
-    );
-    estimator.wait_for("first no-load baseline", limit);
+    let logger = p.logger("s0", &rec_s, &[]);
+    let calibrator = p.calibrator("s0", &cal_s, &[]);
+    let estimator = p.estimator("s0", &["--curvature-m1", "30"]);
+    let publisher = p.publisher_ready("s0", &["sim", "--rate-hz", "500"]);
+    p[estimator].wait_for("first no-load baseline", limit);
 
     let mut garbage = vec![0u8, 0xff, 0xfe, 0x13, 0x37];
     garbage.extend((0..2000u32).map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8));
@@ -124,13 +82,8 @@ fn calibrator_keeps_serving_through_bad_calibration_files() {
     for (i, (name, bytes, needles)) in bad.iter().enumerate() {
         let t_bad = taxel_runtime::now_ns();
         replace(&cal, bytes);
-        wait_count(&mut calibrator, "calibration rejected", i + 1);
-        let line = calibrator
-            .seen
-            .iter()
-            .rfind(|l| l.contains("calibration rejected"))
-            .cloned()
-            .unwrap_or_default();
+        p[calibrator].wait_count("calibration rejected", i + 1, limit);
+        let line = p[calibrator].last_line("calibration rejected");
         assert!(line.contains(&cal_s), "{name}: file not named: {line}");
         for n in *needles {
             assert!(line.contains(n), "{name}: {n:?} missing in: {line}");
@@ -142,46 +95,29 @@ fn calibrator_keeps_serving_through_bad_calibration_files() {
         windows.push((t_bad, t_good, version, *name));
         version += 1;
         replace(&cal, good(version).as_bytes());
-        wait_count(&mut calibrator, "now serving reloaded calibration", i + 1);
+        p[calibrator].wait_count("now serving reloaded calibration", i + 1, limit);
     }
     // Deleted, then a good file appears again.
     let t_bad = taxel_runtime::now_ns();
     std::fs::remove_file(&cal).expect("delete");
-    wait_count(&mut calibrator, "calibration file is gone", 1);
+    p[calibrator].wait_count("calibration file is gone", 1, limit);
     std::thread::sleep(Duration::from_millis(300));
     windows.push((t_bad, taxel_runtime::now_ns(), version, "deleted"));
     version += 1;
     replace(&cal, good(version).as_bytes());
-    wait_count(
-        &mut calibrator,
-        "now serving reloaded calibration",
-        bad.len() + 1,
-    );
+    p[calibrator].wait_count("now serving reloaded calibration", bad.len() + 1, limit);
     std::thread::sleep(Duration::from_millis(300));
 
-    for p in [&publisher, &estimator, &calibrator, &logger] {
-        p.sigint();
-    }
-    for p in [&mut publisher, &mut estimator, &mut calibrator, &mut logger] {
-        let st = p.wait_exit(limit);
-        let out = p.output();
-        assert!(st.success(), "{} exited with {st}:\n{out}", p.name);
-    }
+    p.stop(&[publisher, estimator, calibrator, logger]);
     // One error per bad file, no more (the watcher reports each change once).
-    assert_eq!(count(&mut calibrator, "calibration rejected"), bad.len());
+    assert_eq!(p[calibrator].count("calibration rejected"), bad.len());
 
     // The record of the force stream: versions only ever go up, each bad-file window is
     // served entirely by the version before it, and the last good file serves at the end.
     let mut forces = Vec::new();
     for r in RecordFileReader::open(&rec).expect("record file") {
-        if let Record::Force {
-            t_publish_ns,
-            cal_version,
-            total_force_n,
-            ..
-        } = r
-        {
-            forces.push((t_publish_ns, cal_version, total_force_n));
+        if let Record::Force(f) = r {
+            forces.push((f.t_publish_ns, f.cal_version, f.total_force_n));
         }
     }
     assert!(forces.len() > 1000, "only {} force samples", forces.len());
@@ -214,8 +150,8 @@ fn calibrator_keeps_serving_through_bad_calibration_files() {
 
 /// Runs `taxel args...` and checks it fails with `code` and a one-line error naming `needles`
 /// (file and position), without a panic.
-fn fails(args: &[&str], code: i32, needles: &[&str]) {
-    let (got, _out, err) = common::run(&unique_prefix("bc"), args);
+fn fails(p: &Pipeline, args: &[&str], code: i32, needles: &[&str]) {
+    let (got, _out, err) = p.run(args);
     assert!(!err.contains("panicked"), "{args:?} panicked:\n{err}");
     assert_eq!(got, code, "{args:?} exited {got}:\n{err}");
     let line = err
@@ -228,24 +164,19 @@ fn fails(args: &[&str], code: i32, needles: &[&str]) {
 }
 
 fn raw(seq: u64) -> Record {
-    Record::Raw {
-        sensor: "s0".into(),
-        seq,
-        t_capture_ns: 1_000_000 * seq,
-        rows: 2,
-        cols: 2,
-        flags: 0,
-        source: 1,
-        full_scale: 1023.0,
-        counts: vec![100.0 + seq as f32, 101.0, 102.0, 103.0],
-    }
+    let mut f = taxel_msgs::RawFrame::ZERO;
+    f.sensor = taxel_msgs::sensor_id_bytes("s0").expect("id");
+    (f.seq, f.t_capture_ns, f.rows, f.cols) = (seq, 1_000_000 * seq, 2, 2);
+    (f.source, f.full_scale) = (1, 1023.0);
+    f.counts[..4].copy_from_slice(&[100.0 + seq as f32, 101.0, 102.0, 103.0]);
+    f.into()
 }
 
 #[test]
 fn corrupt_inputs_fail_with_file_and_position() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let p = |name: &str| dir.path().join(name).display().to_string();
-    let write = |name: &str, bytes: &[u8]| std::fs::write(dir.path().join(name), bytes);
+    let pl = pipeline!("bc");
+    let p = |name: &str| pl.arg(name);
+    let write = |name: &str, bytes: &[u8]| std::fs::write(pl.path(name), bytes);
 
     // Recording CSVs: a good one from the simulator, then damaged copies.
     let scenario = p("s.toml");
@@ -256,19 +187,16 @@ fn corrupt_inputs_fail_with_file_and_position() {
     )
     .expect("scenario");
     for out in ["good.csv", "good.csv.gz"] {
-        let (code, _, err) = common::run(
-            "unused_",
-            &[
-                "publisher",
-                "--sensor",
-                "s0",
-                "sim",
-                "--scenario",
-                &scenario,
-                "--to-csv",
-                &p(out),
-            ],
-        );
+        let (code, _, err) = pl.run(&[
+            "publisher",
+            "--sensor",
+            "s0",
+            "sim",
+            "--scenario",
+            &scenario,
+            "--to-csv",
+            &p(out),
+        ]);
         assert_eq!(code, 0, "{err}");
     }
     let csv = std::fs::read_to_string(p("good.csv")).expect("good.csv");
@@ -313,53 +241,63 @@ fn corrupt_inputs_fail_with_file_and_position() {
     );
     let (garbage, empty) = (p("garbage.csv"), p("empty.csv"));
     fails(
+        &pl,
         &["publisher", "replay", &trunc],
         2,
         &["trunc.csv.gz:", "deflate"],
     );
     fails(
+        &pl,
         &["publisher", "replay", &cut],
         2,
         &["cut.csv:21:", "fields"],
     );
     fails(
+        &pl,
         &["publisher", "replay", &extra],
         2,
         &["extra.csv:6:", "22 fields"],
     );
     fails(
+        &pl,
         &["publisher", "replay", &nan],
         2,
         &["nan.csv:10:", "column 4 (n2)"],
     );
     fails(
+        &pl,
         &["publisher", "replay", &word],
         2,
         &["word.csv:13:", "column"],
     );
     fails(
+        &pl,
         &["publisher", "replay", &garbage],
         2,
         &["garbage.csv:3", "UTF-8"],
     );
     fails(
+        &pl,
         &["publisher", "replay", &empty],
         2,
         &["empty.csv", "empty file"],
     );
     let out = p("x.toml");
     fails(
+        &pl,
         &["calibrator", "fit", "--data", &extra, "--out", &out],
         2,
         &["extra.csv:6:"],
     );
     fails(
+        &pl,
         &["calibrator", "fit", "--data", &trunc, "--out", &out],
         2,
         &["trunc.csv.gz:"],
     );
     let model_out = p("x.taxcrv");
     fails(
+        &pl,
         &["estimator", "train", "--data", &nan, "--out", &model_out],
         2,
         &["nan.csv:10:"],
@@ -387,14 +325,16 @@ fn corrupt_inputs_fail_with_file_and_position() {
         (&short, &["short.taxcrv", "corrupt curvature model"][..]),
     ] {
         fails(
+            &pl,
             &["estimator", "eval", "--model", m, "--data", &good_csv],
             2,
             needles,
         );
-        fails(&["estimator", "run", "--model", m], 2, needles);
+        fails(&pl, &["estimator", "run", "--model", m], 2, needles);
     }
     // A model file where a calibration belongs.
     fails(
+        &pl,
         &["calibrator", "run", "--calibration", &v99],
         2,
         &["v99.taxcrv", "not UTF-8 text (byte"],
@@ -402,7 +342,7 @@ fn corrupt_inputs_fail_with_file_and_position() {
 
     // Record files: a tail cut short (what a crashed logger leaves) exports what is there with
     // a warning; damage inside the file, another magic or version fail with the position.
-    let good = dir.path().join("good.taxrec");
+    let good = pl.path("good.taxrec");
     let mut w = taxel_formats::RecordFileWriter::create(&good).expect("create");
     for seq in 0..100 {
         w.append(&raw(seq)).expect("append");
@@ -427,10 +367,7 @@ fn corrupt_inputs_fail_with_file_and_position() {
     v9[8..10].copy_from_slice(&9u16.to_le_bytes());
     write("v9.taxrec", &v9).expect("write");
     let csv_out = p("out.csv");
-    let (code, _, err) = common::run(
-        "unused_",
-        &["logger", "export", &p("cut.taxrec"), "--csv", &csv_out],
-    );
+    let (code, _, err) = pl.run(&["logger", "export", &p("cut.taxrec"), "--csv", &csv_out]);
     assert_eq!(code, 0, "{err}");
     assert!(
         err.contains("cut.taxrec: cut short at record 99 at byte"),
@@ -443,16 +380,19 @@ fn corrupt_inputs_fail_with_file_and_position() {
         "header + 99 complete frames"
     );
     fails(
+        &pl,
         &["logger", "export", &p("flip.taxrec"), "--csv", &csv_out],
         2,
         &["flip.taxrec: damaged at record 50 at byte ", "checksum"],
     );
     fails(
+        &pl,
         &["logger", "export", &p("magic.taxrec"), "--csv", &csv_out],
         2,
         &["magic.taxrec", "bad magic at byte 0"],
     );
     fails(
+        &pl,
         &["logger", "export", &p("v9.taxrec"), "--csv", &csv_out],
         2,
         &["v9.taxrec", "version 9"],

@@ -5,14 +5,12 @@
 //! a file that reads back cleanly to its end: every record intact and in order, the gap marked
 //! with GAP_BEFORE on the first raw frame after it.
 
-mod common;
-
 use std::time::Duration;
 
-use common::{spawn_ready, unique_prefix};
 use taxel_formats::records::Tail;
 use taxel_formats::{Record, RecordFileReader};
 use taxel_msgs::raw_flags;
+use taxel_testkit::pipeline;
 
 /// Sets the soft file-size limit of process `pid` (the hard limit stays as it is).
 fn set_fsize_limit(pid: u32, bytes: Option<u64>) {
@@ -48,74 +46,31 @@ fn set_fsize_limit(pid: u32, bytes: Option<u64>) {
 
 #[test]
 fn logger_survives_a_full_disk_and_marks_the_gap() {
-    let prefix = unique_prefix("df");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let rec = dir.path().join("run.taxrec");
-    let rec_s = rec.display().to_string();
+    let mut p = pipeline!("df");
+    let rec = p.path("run.taxrec");
+    let rec_s = p.arg("run.taxrec");
     let limit = Duration::from_secs(20);
     const FULL_AT: u64 = 96 * 1024;
 
-    let mut logger = spawn_ready(
-        "logger",
-        &prefix,
-        &[
-            "logger",
-            "record",
-            "--sensor",
-            "s0",
-            "--out",
-            &rec_s,
-            "--flush-ms",
-            "50",
-        ],
-        "logger ready",
-    );
+    let logger = p.logger("s0", &rec_s, &["--flush-ms", "50"]);
     // The disk "fills up" at FULL_AT bytes.
-    set_fsize_limit(logger.child.id(), Some(FULL_AT));
-    let mut probe = spawn_ready(
+    set_fsize_limit(p[logger].child.id(), Some(FULL_AT));
+    let probe = p.latency(
         "latency",
-        &prefix,
-        &[
-            "latency",
-            "--sensor",
-            "s0",
-            "--stream",
-            "raw",
-            "--json",
-            "--seconds",
-            "6",
-        ],
-        "latency probe ready",
+        "s0",
+        &["--stream", "raw", "--json", "--seconds", "6"],
     );
-    let mut publisher = spawn_ready(
-        "publisher",
-        &prefix,
-        &[
-            "publisher",
-            "--sensor",
-            "s0",
-            "--seconds",
-            "8",
-            "sim",
-            "--rate-hz",
-            "1000",
-        ],
-        "publisher ready",
-    );
-    logger.wait_for("logger cannot", limit);
+    let publisher = p.publisher_ready("s0", &["--seconds", "8", "sim", "--rate-hz", "1000"]);
+    p[logger].wait_for("logger cannot", limit);
     // Let the writer's buffer fill so records are really lost, then free space again.
     std::thread::sleep(Duration::from_millis(2500));
-    set_fsize_limit(logger.child.id(), None);
-    logger.wait_for("logger writes again", limit);
+    set_fsize_limit(p[logger].child.id(), None);
+    p[logger].wait_for("logger writes again", limit);
 
-    let st = publisher.wait_exit(limit);
-    assert!(st.success(), "publisher: {st}\n{}", publisher.output());
-    let st = probe.wait_exit(limit);
-    assert!(st.success(), "latency: {st}\n{}", probe.output());
-    logger.sigint();
-    let st = logger.wait_exit(limit);
-    let log = logger.output();
-    assert!(st.success(), "logger: {st}\n{log}");
+    p.finish(publisher, limit);
+    p.finish(probe, limit);
+    p.stop(&[logger]);
+    let log = p[logger].output();
 
     // Reported once per episode, not per record.
     let errors = log.lines().filter(|l| l.contains("logger cannot")).count();
@@ -138,7 +93,7 @@ fn logger_survives_a_full_disk_and_marks_the_gap() {
     // The stream stayed alive for everyone else: the probe on the raw stream kept receiving.
     // (Its drop count is printed, not asserted: on a loaded machine a probe can miss frames
     // for reasons of its own; the publisher never blocks, iceoryx2's safe overflow sees to it.)
-    let out = probe.output();
+    let out = p[probe].output();
     let json = out
         .lines()
         .find(|l| l.starts_with('{'))
@@ -156,11 +111,11 @@ fn logger_survives_a_full_disk_and_marks_the_gap() {
     let mut seqs = Vec::new();
     let mut gap_marks = Vec::new();
     for r in reader.by_ref() {
-        if let Record::Raw { seq, flags, .. } = r {
-            if flags & raw_flags::GAP_BEFORE != 0 {
+        if let Record::Raw(f) = r {
+            if f.flags & raw_flags::GAP_BEFORE != 0 {
                 gap_marks.push(seqs.len());
             }
-            seqs.push(seq);
+            seqs.push(f.seq);
         }
     }
     assert_eq!(reader.tail(), Some(&Tail::Clean), "file damaged");

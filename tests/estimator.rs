@@ -2,13 +2,11 @@
 //! flagged as learned and close to the simulated mounting, held while the sensor is loaded, and
 //! renewed after a remount to another curvature.
 
-mod common;
-
 use std::time::Duration;
 
-use common::{spawn, spawn_logger, spawn_ready, unique_prefix};
 use taxel_formats::{Record, RecordFileReader};
 use taxel_msgs::curvature_flags;
+use taxel_testkit::pipeline;
 
 const SCENARIO: &str = r#"
 rate_hz = 200
@@ -36,40 +34,19 @@ rest_s = 6.0
 
 #[test]
 fn learned_estimates_track_the_mounting_and_hold_under_load() {
-    let prefix = unique_prefix("e");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let scenario = dir.path().join("s.toml");
-    std::fs::write(&scenario, SCENARIO).expect("scenario");
-    let rec = dir.path().join("e.taxrec");
+    let mut p = pipeline!("e");
+    let scen_s = p.write("s.toml", SCENARIO);
+    let rec = p.path("e.taxrec");
+    let rec_s = p.arg("e.taxrec");
     let model = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/models/curvature-default.taxcrv"
     );
-    let (scen_s, rec_s) = (scenario.display().to_string(), rec.display().to_string());
-    let limit = Duration::from_secs(20);
-    let mut logger = spawn_logger(&prefix, "s0", &rec_s);
-    let mut estimator = spawn_ready(
-        "estimator",
-        &prefix,
+    let logger = p.logger("s0", &rec_s, &[]);
+    let estimator = p.estimator("s0", &["--model", model, "--rebaseline-s", "2"]);
+    let publisher = p.publisher(
+        "s0",
         &[
-            "estimator",
-            "run",
-            "--sensor",
-            "s0",
-            "--model",
-            model,
-            "--rebaseline-s",
-            "2",
-        ],
-        "estimator ready",
-    );
-    let mut publisher = spawn(
-        "publisher",
-        &prefix,
-        &[
-            "publisher",
-            "--sensor",
-            "s0",
             "sim",
             "--preset",
             "paper-dataset",
@@ -79,35 +56,22 @@ fn learned_estimates_track_the_mounting_and_hold_under_load() {
             &scen_s,
         ],
     );
-    let st = publisher.wait_exit(Duration::from_secs(40));
-    assert!(st.success(), "publisher {st}");
-    for p in [&estimator, &logger] {
-        p.sigint();
-    }
-    for p in [&mut estimator, &mut logger] {
-        let st = p.wait_exit(limit);
-        assert!(st.success(), "{} exited {st}", p.name);
-    }
+    p.finish(publisher, Duration::from_secs(40));
+    p.stop(&[estimator, logger]);
     let mut force = std::collections::HashMap::new();
     let mut estimates = Vec::new();
     for r in RecordFileReader::open(&rec).expect("record file") {
         match r {
-            Record::Reference {
-                seq,
-                force_n,
-                t_source_s,
-                ..
-            } => {
-                force.insert(seq, (force_n, t_source_s));
+            Record::Reference(v) => {
+                force.insert(v.seq, (v.force_n, v.t_source_s));
             }
-            Record::Curvature {
-                seq,
-                curvature_m1,
-                curvature_sd_m1,
-                flags,
-                model_version,
-                ..
-            } => estimates.push((seq, curvature_m1, curvature_sd_m1, flags, model_version)),
+            Record::Curvature(e) => estimates.push((
+                e.seq,
+                e.curvature_m1,
+                e.curvature_sd_m1,
+                e.flags,
+                e.model_version,
+            )),
             _ => {}
         }
     }

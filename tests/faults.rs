@@ -5,14 +5,12 @@
 //! flush, and a short soak with random kills loses nothing outside the killed process's
 //! downtime.
 
-mod common;
-
 use std::path::Path;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use common::{run, shm_files, spawn, spawn_ready, unique_prefix, Proc};
 use taxel_formats::{Record, RecordFileReader};
 use taxel_msgs::{force_flags, raw_flags};
+use taxel_testkit::{pipeline, shm_files, Proc};
 
 const SIM_CAL: &str = include_str!("../calibrations/sim-default.toml");
 
@@ -43,26 +41,9 @@ fn current_pid(p: &mut Proc, name: &str) -> u32 {
         .unwrap_or_else(|| panic!("no pid for {name}:\n{out}"))
 }
 
-fn count(p: &mut Proc, needle: &str) -> usize {
-    p.output().lines().filter(|l| l.contains(needle)).count()
-}
-
 /// Waits until `needle` has appeared more than `before` times.
-fn wait_count(p: &mut Proc, needle: &str, before: usize, limit: Duration) {
-    let t0 = Instant::now();
-    while count(p, needle) <= before {
-        assert!(
-            t0.elapsed() < limit,
-            "{needle:?} did not appear (again) within {limit:?}:\n{}",
-            p.output()
-        );
-        assert!(
-            p.child.try_wait().ok().flatten().is_none(),
-            "taxel up exited:\n{}",
-            p.output()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+fn wait_more(p: &mut Proc, needle: &str, before: usize, limit: Duration) {
+    p.wait_count(needle, before + 1, limit);
 }
 
 fn read_records(path: &Path) -> Vec<Record> {
@@ -92,12 +73,10 @@ fn gaps_are_flagged(seq_flags: &[(u64, u32)], gap_bit: u32, what: &str) -> usize
 
 #[test]
 fn kill_9_of_each_process_kind_is_survived_under_taxel_up() {
-    let prefix = unique_prefix("f");
-    let dir = tempfile::tempdir().expect("tempdir");
-    std::fs::write(dir.path().join("cal.toml"), SIM_CAL).expect("calibration");
-    let pipeline = dir.path().join("pipeline.toml");
-    std::fs::write(
-        &pipeline,
+    let mut p = pipeline!("f");
+    p.write("cal.toml", SIM_CAL);
+    let pipeline = p.write(
+        "pipeline.toml",
         r#"
 log = "info"
 [supervision]
@@ -123,10 +102,10 @@ flush_ms = 100
 
 [[latency]]
 "#,
-    )
-    .expect("pipeline");
+    );
     let limit = Duration::from_secs(20);
-    let mut up = spawn("up", &prefix, &["up", &pipeline.display().to_string()]);
+    let up = p.spawn("up", &["up", &pipeline]);
+    let up = &mut p[up];
     up.wait_for("started publisher-s0 pid", limit);
     up.wait_for("publisher ready", limit);
     up.wait_for("first no-load baseline", limit);
@@ -151,11 +130,11 @@ flush_ms = 100
         let others: Vec<(&str, u32)> = names
             .iter()
             .filter(|n| *n != victim)
-            .map(|n| (*n, current_pid(&mut up, n)))
+            .map(|n| (*n, current_pid(up, n)))
             .collect();
-        let pid = current_pid(&mut up, victim);
-        let ready_before = count(&mut up, ready_line);
-        let safe_before = count(&mut up, "safe state");
+        let pid = current_pid(up, victim);
+        let ready_before = up.count(ready_line);
+        let safe_before = up.count("safe state");
         std::thread::sleep(Duration::from_millis(700));
         sigkill(pid);
         up.wait_for(
@@ -164,7 +143,7 @@ flush_ms = 100
         );
         up.wait_for(&format!("restarted {victim} pid"), limit);
         // The replacement opened the same services: nothing stale blocked it.
-        wait_count(&mut up, ready_line, ready_before, limit);
+        wait_more(up, ready_line, ready_before, limit);
         let line = up
             .output()
             .lines()
@@ -177,19 +156,19 @@ flush_ms = 100
         );
         if ["calibrator-s0", "publisher-s0"].contains(victim) {
             // No fresh force samples while it is down: the control loop holds its safe state.
-            wait_count(&mut up, "safe state", safe_before, limit);
+            wait_more(up, "safe state", safe_before, limit);
         }
         for (name, opid) in &others {
             assert!(
                 alive(*opid),
                 "{name} (pid {opid}) did not survive the kill of {victim}"
             );
-            assert_eq!(current_pid(&mut up, name), *opid, "{name} was restarted");
+            assert_eq!(current_pid(up, name), *opid, "{name} was restarted");
         }
     }
     // The stream resumed: the control loop runs unflagged again after the last restart.
-    let status_before = count(&mut up, " ok");
-    wait_count(&mut up, " ok", status_before, limit);
+    let status_before = up.count(" ok");
+    wait_more(up, " ok", status_before, limit);
     std::thread::sleep(Duration::from_millis(500));
     up.sigint();
     let st = up.wait_exit(Duration::from_secs(30));
@@ -204,27 +183,27 @@ flush_ms = 100
         );
     }
     assert!(out.contains("no iceoryx2 nodes left"), "{out}");
-    assert_eq!(shm_files(&prefix), Vec::<String>::new());
+    assert_eq!(shm_files(&p.prefix), Vec::<String>::new());
 
     // The first logger's file is readable up to its last flush; the replacement recorded the
     // calibrator and publisher restarts, each a flagged gap.
-    let first = read_records(&dir.path().join("run.taxrec"));
+    let first = read_records(&p.path("run.taxrec"));
     assert!(
         !first.is_empty(),
         "nothing readable in the killed logger's file"
     );
-    let second = read_records(&dir.path().join("run.1.taxrec"));
+    let second = read_records(&p.path("run.1.taxrec"));
     let raw: Vec<(u64, u32)> = second
         .iter()
         .filter_map(|r| match r {
-            Record::Raw { seq, flags, .. } => Some((*seq, *flags)),
+            Record::Raw(f) => Some((f.seq, f.flags)),
             _ => None,
         })
         .collect();
     let force: Vec<(u64, u32)> = second
         .iter()
         .filter_map(|r| match r {
-            Record::Force { seq, flags, .. } => Some((*seq, *flags)),
+            Record::Force(f) => Some((f.seq, f.flags)),
             _ => None,
         })
         .collect();
@@ -241,38 +220,18 @@ flush_ms = 100
 
 #[test]
 fn a_sigkilled_logger_leaves_a_recording_readable_up_to_its_last_flush() {
-    let prefix = unique_prefix("k");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let rec = dir.path().join("run.taxrec");
-    let rec_s = rec.display().to_string();
+    let mut p = pipeline!("k");
+    let rec = p.path("run.taxrec");
+    let rec_s = p.arg("run.taxrec");
     let flush_ms = 100u64;
-    let mut logger = spawn_ready(
-        "logger",
-        &prefix,
-        &[
-            "logger",
-            "record",
-            "--sensor",
-            "s0",
-            "--out",
-            &rec_s,
-            "--flush-ms",
-            &flush_ms.to_string(),
-        ],
-        "logger ready",
-    );
-    let mut publisher = spawn_ready(
-        "publisher",
-        &prefix,
-        // 200 Hz: the logger's 256-sample buffer covers 1.3 s of scheduling stalls on a busy
-        // machine, so a gap in the file can only come from the kill.
-        &["publisher", "--sensor", "s0", "sim", "--rate-hz", "200"],
-        "publisher ready",
-    );
+    let logger = p.logger("s0", &rec_s, &["--flush-ms", &flush_ms.to_string()]);
+    // 200 Hz: the logger's 256-sample buffer covers 1.3 s of scheduling stalls on a busy
+    // machine, so a gap in the file can only come from the kill.
+    let publisher = p.publisher_ready("s0", &["sim", "--rate-hz", "200"]);
     std::thread::sleep(Duration::from_millis(2500));
     let t_kill = taxel_runtime::now_ns();
-    logger.child.kill().expect("SIGKILL the logger");
-    let st = logger.wait_exit(Duration::from_secs(10));
+    p[logger].child.kill().expect("SIGKILL the logger");
+    let st = p[logger].wait_exit(Duration::from_secs(10));
     assert!(!st.success());
 
     let mut reader = RecordFileReader::open(&rec).expect("open");
@@ -280,11 +239,8 @@ fn a_sigkilled_logger_leaves_a_recording_readable_up_to_its_last_flush() {
     let mut total = 0usize;
     while let Some(r) = reader.next_record() {
         total += 1;
-        if let Record::Raw {
-            seq, t_capture_ns, ..
-        } = r
-        {
-            raw.push((seq, t_capture_ns));
+        if let Record::Raw(f) = r {
+            raw.push((f.seq, f.t_capture_ns));
         }
     }
     assert!(raw.len() > 300, "only {} raw records", raw.len());
@@ -305,47 +261,37 @@ fn a_sigkilled_logger_leaves_a_recording_readable_up_to_its_last_flush() {
     );
 
     // The stream survived the dead subscriber; a new node under the prefix cleans it up.
-    let mut second = spawn_ready(
+    let run2 = p.arg("run2.taxrec");
+    let second = p.spawn_ready(
         "logger2",
-        &prefix,
-        &[
-            "logger",
-            "record",
-            "--sensor",
-            "s0",
-            "--out",
-            &dir.path().join("run2.taxrec").display().to_string(),
-        ],
+        &["logger", "record", "--sensor", "s0", "--out", &run2],
         "logger ready",
     );
     std::thread::sleep(Duration::from_millis(300));
-    second.sigint();
-    assert!(second.wait_exit(Duration::from_secs(10)).success());
+    p.stop(&[second]);
     assert!(
-        read_records(&dir.path().join("run2.taxrec"))
+        read_records(&p.path("run2.taxrec"))
             .iter()
-            .any(|r| matches!(r, Record::Raw { .. })),
+            .any(|r| matches!(r, Record::Raw(_))),
         "the publisher kept streaming after the logger was killed"
     );
-    publisher.sigint();
-    assert!(publisher.wait_exit(Duration::from_secs(10)).success());
+    p.stop(&[publisher]);
     // No node, dead or alive, is left; the prefix's management segment is released as a
     // launcher does (the killed logger prevented iceoryx2 from removing it by itself).
     assert_eq!(
-        taxel_runtime::ipc::count_nodes(&prefix).expect("list"),
+        taxel_runtime::ipc::count_nodes(&p.prefix).expect("list"),
         (0, 0)
     );
-    taxel_runtime::ipc::release_prefix(&prefix).expect("release");
-    assert_eq!(shm_files(&prefix), Vec::<String>::new());
+    taxel_runtime::ipc::release_prefix(&p.prefix).expect("release");
+    assert_eq!(shm_files(&p.prefix), Vec::<String>::new());
 }
 
 #[test]
 fn a_short_soak_with_random_kills_loses_nothing_outside_downtime() {
-    let prefix = unique_prefix("s");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let mut soak = spawn(
+    let mut p = pipeline!("s");
+    let (prefix, out) = (p.prefix.clone(), p.dir().display().to_string());
+    let soak = p.spawn(
         "soak",
-        &prefix,
         &[
             "soak",
             "--seconds",
@@ -364,12 +310,11 @@ fn a_short_soak_with_random_kills_loses_nothing_outside_downtime() {
             "--prefix",
             &prefix,
             "--out",
-            &dir.path().display().to_string(),
+            &out,
         ],
     );
-    let st = soak.wait_exit(Duration::from_secs(90));
-    let out = soak.output();
-    assert!(st.success(), "soak exited {st}:\n{out}");
+    p.finish(soak, Duration::from_secs(90));
+    let out = p[soak].output();
     let json = out
         .lines()
         .find(|l| l.starts_with("{\"seconds\""))
@@ -410,14 +355,12 @@ fn a_short_soak_with_random_kills_loses_nothing_outside_downtime() {
 
 #[test]
 fn a_process_that_keeps_dying_exhausts_its_restart_budget_and_the_others_keep_running() {
-    let prefix = unique_prefix("b");
-    let dir = tempfile::tempdir().expect("tempdir");
-    std::fs::write(dir.path().join("cal.toml"), SIM_CAL).expect("calibration");
+    let mut p = pipeline!("b");
+    p.write("cal.toml", SIM_CAL);
     // s1 replays a file with a bad row: its publisher exits 2 at every start.
-    std::fs::write(dir.path().join("bad.csv"), "t_s,n0\n0.0,abc\n").expect("csv");
-    let pipeline = dir.path().join("pipeline.toml");
-    std::fs::write(
-        &pipeline,
+    p.write("bad.csv", "t_s,n0\n0.0,abc\n");
+    let pipeline = p.write(
+        "pipeline.toml",
         r#"
 log = "info"
 [supervision]
@@ -441,10 +384,11 @@ source = { kind = "replay", file = "bad.csv" }
 [[control]]
 sensor = "s0"
 "#,
-    )
-    .expect("pipeline");
+    );
     let limit = Duration::from_secs(20);
-    let mut up = spawn("up", &prefix, &["up", &pipeline.display().to_string()]);
+    let up = p.spawn("up", &["up", &pipeline]);
+    let prefix = p.prefix.clone();
+    let up = &mut p[up];
     up.wait_for("publisher-s1 pid", limit);
     // Backoff doubles up to its maximum, then the budget runs out.
     up.wait_for("died (exit 2); restart 1 in 100 ms", limit);
@@ -466,14 +410,14 @@ sensor = "s0"
         "publisher-s0",
     ]
     .iter()
-    .map(|n| (*n, current_pid(&mut up, n)))
+    .map(|n| (*n, current_pid(up, n)))
     .collect();
     // s0 keeps streaming: its control loop prints fresh status lines.
-    let status = count(&mut up, "[s0] ");
-    wait_count(&mut up, "[s0] ", status + 1, limit);
+    let status = up.count("[s0] ");
+    wait_more(up, "[s0] ", status + 1, limit);
     for (n, pid) in &survivors {
         assert!(alive(*pid), "{n} died");
-        assert_eq!(current_pid(&mut up, n), *pid, "{n} was restarted");
+        assert_eq!(current_pid(up, n), *pid, "{n} was restarted");
     }
     up.sigint();
     let st = up.wait_exit(Duration::from_secs(30));
@@ -488,6 +432,13 @@ sensor = "s0"
             .any(|l| l.contains("publisher-s1") && l.contains("gave up (exit 2)")),
         "{out}"
     );
+    // The reason for the exit code, in one line.
+    assert!(
+        out.lines()
+            .any(|l| l
+                .starts_with("taxel up: error: 1 process(es) did not end cleanly: publisher-s1")),
+        "{out}"
+    );
     for (n, _) in &survivors {
         assert!(
             out.lines()
@@ -500,28 +451,112 @@ sensor = "s0"
 
 #[test]
 fn a_bad_pipeline_file_is_refused_before_anything_starts() {
-    let prefix = unique_prefix("e");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let p = dir.path().join("bad.toml");
-    std::fs::write(
-        &p,
+    let pl = pipeline!("e");
+    let ps = pl.write(
+        "bad.toml",
         "[[sensor]]\nid = \"s0\"\ncalibration = \"nope.toml\"\ncurvature_m1 = 1\nsource = { kind = \"sim\" }\n",
-    )
-    .expect("write");
-    let ps = p.display().to_string();
-    let (code, out, err) = run(&prefix, &["up", &ps]);
+    );
+    let (code, out, err) = pl.run(&["up", &ps]);
     assert_eq!(code, 2, "{out}{err}");
     assert!(
         err.contains("bad.toml") && err.contains("nope.toml"),
         "{err}"
     );
     assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
-    std::fs::write(&p, "[supervision]\nbackof_ms = 3\n").expect("write");
-    let (code, _, err) = run(&prefix, &["up", &ps]);
+    pl.write("bad.toml", "[supervision]\nbackof_ms = 3\n");
+    let (code, _, err) = pl.run(&["up", &ps]);
     assert_eq!(code, 2);
     assert!(err.contains("backof_ms"), "{err}");
-    let (code, _, err) = run(&prefix, &["up", "/nonexistent/pipeline.toml"]);
+    let (code, _, err) = pl.run(&["up", "/nonexistent/pipeline.toml"]);
     assert_eq!(code, 2);
     assert!(err.contains("/nonexistent/pipeline.toml"), "{err}");
-    assert_eq!(shm_files(&prefix), Vec::<String>::new());
+    assert_eq!(shm_files(&pl.prefix), Vec::<String>::new());
+}
+
+#[test]
+fn a_calibrator_with_dynamic_terms_restarted_after_kill_9_flags_its_state_until_it_is_known() {
+    // The shipped simulator calibration with creep and hysteresis terms on both blocks.
+    let terms = "creep = { tau_s = [0.5, 1.5], share = [0.02, 0.03], domain = \"force\" }\nhysteresis = { threshold_n = [0.2, 0.5], weight = [0.05, 0.05] }";
+    let mut cal = String::new();
+    for line in SIM_CAL.lines() {
+        cal.push_str(line);
+        cal.push('\n');
+        if line.starts_with("range = ") {
+            cal.push_str(terms);
+            cal.push('\n');
+        }
+    }
+    assert_eq!(cal.matches("hysteresis = ").count(), 2, "{cal}");
+    let mut p = pipeline!("fk");
+    p.write("cal.toml", &cal);
+    let pipeline = p.write(
+        "pipeline.toml",
+        r#"
+log = "info"
+[supervision]
+backoff_initial_ms = 100
+max_restarts = 3
+
+[[sensor]]
+id = "s0"
+calibration = "cal.toml"
+curvature_m1 = 40
+source = { kind = "sim", rate_hz = 200 }
+
+[logger]
+out = "run.taxrec"
+flush_ms = 100
+"#,
+    );
+    let limit = Duration::from_secs(20);
+    let up = p.spawn("up", &["up", &pipeline]);
+    let up = &mut p[up];
+    up.wait_for("calibrator ready", limit);
+    up.wait_for("first no-load baseline", limit);
+    std::thread::sleep(Duration::from_millis(2500));
+    let pid = current_pid(up, "calibrator-s0");
+    sigkill(pid);
+    up.wait_for("restarted calibrator-s0 pid", limit);
+    up.wait_count("calibrator ready", 2, limit);
+    std::thread::sleep(Duration::from_millis(4000));
+    up.sigint();
+    let st = up.wait_exit(Duration::from_secs(30));
+    assert!(st.success(), "taxel up exited {st}:\n{}", up.output());
+    let force: Vec<(u64, u32)> = read_records(&p.path("run.taxrec"))
+        .iter()
+        .filter_map(|r| match r {
+            Record::Force(f) => Some((f.seq, f.flags)),
+            _ => None,
+        })
+        .collect();
+    let warming = |f: &u32| f & force_flags::DYNAMICS_WARMING != 0;
+    // The replacement's first sample follows the gap (without a baseline until the estimate
+    // reaches it: NaN forces); from its first force on its state is flagged until the force
+    // has swept the plays, then never again.
+    let restart = force
+        .iter()
+        .rposition(|(_, f)| f & force_flags::GAP_BEFORE != 0)
+        .expect("the restarted calibrator's first sample");
+    let after: Vec<u32> = force[restart..]
+        .iter()
+        .map(|x| x.1)
+        .filter(|f| f & force_flags::NO_BASELINE == 0)
+        .collect();
+    assert!(
+        !after.is_empty() && warming(&after[0]),
+        "first force after the restart: {:#x?}",
+        after.first()
+    );
+    let known = after
+        .iter()
+        .position(|f| !warming(f))
+        .expect("the state became known after the restart");
+    assert!(
+        after[known..].iter().all(|f| !warming(f)),
+        "flagged again later"
+    );
+    eprintln!(
+        "after the restart: warming for {known} of {} samples",
+        after.len()
+    );
 }

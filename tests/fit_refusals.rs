@@ -3,11 +3,9 @@
 //! that do not follow the force are refused with one line naming the cause and a non-zero exit,
 //! and no file is written (unless --accept-poor-fit asks for it).
 
-mod common;
-
 use std::path::{Path, PathBuf};
 
-use common::run;
+use taxel_testkit::{pipeline, Pipeline};
 
 /// A one-node session at 50 Hz: rests and presses of 2..10 N; `reading(F, i)` per frame.
 fn session(dir: &Path, name: &str, rest_n: f64, reading: impl Fn(f64, usize) -> f64) -> PathBuf {
@@ -41,14 +39,14 @@ fn jitter(i: usize) -> f64 {
     ((i.wrapping_mul(2_654_435_761) % 1000) as f64 / 500.0) - 1.0
 }
 
-fn fit(args: &[&str]) -> (i32, String, String) {
+fn fit(p: &Pipeline, args: &[&str]) -> (i32, String, String) {
     let mut all = vec!["calibrator", "fit", "--flat"];
     all.extend_from_slice(args);
-    run("fitrefusal", &all)
+    p.run(&all)
 }
 
-fn refused(args: &[&str], out: &Path, needle: &str) {
-    let (code, _stdout, err) = fit(args);
+fn refused(p: &Pipeline, args: &[&str], out: &Path, needle: &str) {
+    let (code, _stdout, err) = fit(p, args);
     assert_ne!(code, 0, "{args:?} was accepted");
     let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
     assert_eq!(lines.len(), 1, "{args:?}: not one line:\n{err}");
@@ -58,17 +56,18 @@ fn refused(args: &[&str], out: &Path, needle: &str) {
 
 #[test]
 fn bad_fits_are_refused_with_their_cause_and_nothing_is_written() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let out = dir.path().join("cal.toml");
+    let p = pipeline!("fitrefusal");
+    let dir = p.dir();
+    let out = p.path("cal.toml");
     let out_s = out.display().to_string();
     // Ohms that fall with force.
-    let ohms = session(dir.path(), "ohms.csv", 0.0, |f, i| {
+    let ohms = session(dir, "ohms.csv", 0.0, |f, i| {
         2000.0 / (1.0 + 0.8 * f) + 2.0 * jitter(i)
     });
     let ohms_s = ohms.display().to_string();
 
     // A good session is fitted, and auto says which readout it decided and why.
-    let (code, stdout, err) = fit(&["--data", &ohms_s, "--out", &out_s]);
+    let (code, stdout, err) = fit(&p, &["--data", &ohms_s, "--out", &out_s]);
     assert_eq!(code, 0, "{err}");
     assert!(
         stdout
@@ -81,15 +80,17 @@ fn bad_fits_are_refused_with_their_cause_and_nothing_is_written() {
 
     // The wrong readout direction.
     refused(
+        &p,
         &["--data", &ohms_s, "--out", &out_s, "--readout", "amplifier"],
         &out,
         "wrong readout direction",
     );
 
     // No force column.
-    let bare = dir.path().join("bare.csv");
+    let bare = dir.join("bare.csv");
     std::fs::write(&bare, "t_s,n0\n0,100\n0.02,101\n0.04,99\n").expect("write");
     refused(
+        &p,
         &["--data", &bare.display().to_string(), "--out", &out_s],
         &out,
         "force_n",
@@ -105,25 +106,28 @@ fn bad_fits_are_refused_with_their_cause_and_nothing_is_written() {
             0.98 + 0.005 * jitter(i + 7)
         ));
     }
-    let hold = dir.path().join("hold.csv");
+    let hold = dir.join("hold.csv");
     std::fs::write(&hold, text).expect("write");
     refused(
+        &p,
         &["--data", &hold.display().to_string(), "--out", &out_s],
         &out,
         "no unloaded frames",
     );
 
     // Readings that do not follow the force: refused, unless asked for.
-    let noise = session(dir.path(), "noise.csv", 0.0, |_, i| {
-        500.0 + 50.0 * jitter(i)
-    });
+    let noise = session(dir, "noise.csv", 0.0, |_, i| 500.0 + 50.0 * jitter(i));
     let noise_s = noise.display().to_string();
     refused(
+        &p,
         &["--data", &noise_s, "--out", &out_s],
         &out,
         "--accept-poor-fit",
     );
-    let (code, _, err) = fit(&["--data", &noise_s, "--out", &out_s, "--accept-poor-fit"]);
+    let (code, _, err) = fit(
+        &p,
+        &["--data", &noise_s, "--out", &out_s, "--accept-poor-fit"],
+    );
     assert_eq!(code, 0, "{err}");
     assert!(out.exists());
 }

@@ -3,65 +3,29 @@
 //! and deleted. Each time the old model keeps serving (the estimator stays up and one error
 //! names the file); a later good model is picked up and the estimates carry its version.
 
-mod common;
-
-use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::{run, spawn, spawn_logger, spawn_ready, unique_prefix};
 use taxel_formats::{Record, RecordFileReader};
+use taxel_testkit::{pipeline, replace};
 
 const SHIPPED: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
     "/models/curvature-default.taxcrv"
 );
 
-fn replace(path: &Path, bytes: &[u8]) {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes).expect("write");
-    std::fs::rename(&tmp, path).expect("rename");
-}
-
-fn count(p: &mut common::Proc, needle: &str) -> usize {
-    p.pump();
-    p.seen.iter().filter(|l| l.contains(needle)).count()
-}
-
-fn wait_count(p: &mut common::Proc, needle: &str, n: usize, limit: Duration) {
-    let t0 = Instant::now();
-    while count(p, needle) < n {
-        if let Ok(Some(st)) = p.child.try_wait() {
-            panic!(
-                "estimator exited ({st}) waiting for {needle:?}:\n{}",
-                p.output()
-            );
-        }
-        assert!(
-            t0.elapsed() < limit,
-            "no {n} x {needle:?} within {limit:?}:\n{}",
-            p.output()
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
 #[test]
 fn bad_model_files_are_refused_and_a_good_one_is_picked_up() {
-    let prefix = unique_prefix("mr");
-    let dir = tempfile::tempdir().expect("tempdir");
+    let mut p = pipeline!("mr");
     // A second, different model: ridge on a small simulated dataset.
-    let data = dir.path().join("data");
-    let (code, _, err) = run(
-        &prefix,
-        &[
-            "estimator",
-            "dataset",
-            "--out",
-            &data.display().to_string(),
-            "--seed",
-            "4",
-        ],
-    );
+    let data = p.path("data");
+    let (code, _, err) = p.run(&[
+        "estimator",
+        "dataset",
+        "--out",
+        &data.display().to_string(),
+        "--seed",
+        "4",
+    ]);
     assert_eq!(code, 0, "{err}");
     let mut files: Vec<String> = std::fs::read_dir(&data)
         .expect("dataset dir")
@@ -69,7 +33,7 @@ fn bad_model_files_are_refused_and_a_good_one_is_picked_up() {
         .filter(|p| p.ends_with(".csv") || p.ends_with(".csv.gz"))
         .collect();
     files.sort();
-    let ridge = dir.path().join("ridge.taxcrv");
+    let ridge = p.path("ridge.taxcrv");
     let mut args = vec!["estimator", "train", "--model", "ridge", "--out"];
     let ridge_s = ridge.display().to_string();
     args.push(&ridge_s);
@@ -77,38 +41,20 @@ fn bad_model_files_are_refused_and_a_good_one_is_picked_up() {
     for f in &files {
         args.push(f);
     }
-    let (code, _, err) = run(&prefix, &args);
+    let (code, _, err) = p.run(&args);
     assert_eq!(code, 0, "{err}");
 
-    let model = dir.path().join("model.taxcrv");
+    let model = p.path("model.taxcrv");
     let shipped = std::fs::read(SHIPPED).expect("shipped model");
     std::fs::write(&model, &shipped).expect("copy");
     let model_s = model.display().to_string();
-    let rec = dir.path().join("r.taxrec");
-    let rec_s = rec.display().to_string();
-    let mut logger = spawn_logger(&prefix, "s0", &rec_s);
-    let mut estimator = spawn_ready(
-        "estimator",
-        &prefix,
+    let rec = p.path("r.taxrec");
+    let rec_s = p.arg("r.taxrec");
+    let logger = p.logger("s0", &rec_s, &[]);
+    let estimator = p.estimator("s0", &["--model", &model_s, "--min-interval-s", "0.5"]);
+    let publisher = p.publisher(
+        "s0",
         &[
-            "estimator",
-            "run",
-            "--sensor",
-            "s0",
-            "--model",
-            &model_s,
-            "--min-interval-s",
-            "0.5",
-        ],
-        "estimator ready",
-    );
-    let mut publisher = spawn(
-        "publisher",
-        &prefix,
-        &[
-            "publisher",
-            "--sensor",
-            "s0",
             "sim",
             "--preset",
             "paper-dataset",
@@ -121,7 +67,7 @@ fn bad_model_files_are_refused_and_a_good_one_is_picked_up() {
         ],
     );
     let limit = Duration::from_secs(20);
-    estimator.wait_for("first no-load baseline measured", limit);
+    p[estimator].wait_for("first no-load baseline measured", limit);
 
     let refused = "curvature model refused";
     let mut bad: Vec<(&str, Vec<u8>)> = vec![
@@ -144,31 +90,20 @@ fn bad_model_files_are_refused_and_a_good_one_is_picked_up() {
     bad.push(("other version", other_version));
     for (i, (what, bytes)) in bad.iter().enumerate() {
         replace(&model, bytes);
-        wait_count(&mut estimator, refused, i + 1, limit);
-        let line = estimator
-            .seen
-            .iter()
-            .rev()
-            .find(|l| l.contains(refused))
-            .cloned()
-            .unwrap_or_default();
+        p[estimator].wait_count(refused, i + 1, limit);
+        let line = p[estimator].last_line(refused);
         assert!(
             line.contains("model.taxcrv"),
             "{what}: the error names the file: {line}"
         );
     }
     std::fs::remove_file(&model).expect("delete");
-    wait_count(
-        &mut estimator,
-        "was deleted; the loaded model keeps serving",
-        1,
-        limit,
-    );
-    assert_eq!(count(&mut estimator, "curvature model reloaded"), 0);
+    p[estimator].wait_count("was deleted; the loaded model keeps serving", 1, limit);
+    assert_eq!(p[estimator].count("curvature model reloaded"), 0);
     // A good model (another one) is picked up.
     replace(&model, &std::fs::read(&ridge).expect("ridge model"));
-    estimator.wait_for("curvature model reloaded", limit);
-    let line = estimator
+    p[estimator].wait_for("curvature model reloaded", limit);
+    let line = p[estimator]
         .seen
         .iter()
         .find(|l| l.contains("curvature model reloaded"))
@@ -187,7 +122,7 @@ fn bad_model_files_are_refused_and_a_good_one_is_picked_up() {
         let v: Vec<u32> = RecordFileReader::open(&rec)
             .map(|r| {
                 r.filter_map(|rec| match rec {
-                    Record::Curvature { model_version, .. } => Some(model_version),
+                    Record::Curvature(e) => Some(e.model_version),
                     _ => None,
                 })
                 .collect()
@@ -213,19 +148,13 @@ fn bad_model_files_are_refused_and_a_good_one_is_picked_up() {
         versions[..first_new].iter().all(|v| *v == shipped_version),
         "before it only the old one, bad files in between changed nothing: {versions:?}"
     );
-    publisher.sigint();
-    let st = publisher.wait_exit(limit);
-    assert!(st.success(), "publisher {st}");
-    estimator.sigint();
-    let st = estimator.wait_exit(limit);
-    assert!(st.success(), "estimator {st}:\n{}", estimator.output());
-    logger.sigint();
-    let st = logger.wait_exit(limit);
-    assert!(st.success(), "logger {st}");
-    let out = estimator.output();
+    p.stop(&[publisher]);
+    p.stop(&[estimator]);
+    p.stop(&[logger]);
+    let out = p[estimator].output();
     assert!(out.contains("reloads=1"), "{out}");
     assert_eq!(
-        count(&mut estimator, refused),
+        p[estimator].count(refused),
         4,
         "one error per bad file:\n{out}"
     );

@@ -2,12 +2,10 @@
 //! tmux session of fixed size), read back with capture-pane, keys sent with send-keys, against a
 //! running two-sensor demo. Skips with a message when tmux is not installed.
 
-mod common;
-
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::{run, spawn, unique_prefix, TAXEL};
+use taxel_testkit::{pipeline, Pipeline};
 
 struct Tmux {
     socket: String,
@@ -48,11 +46,13 @@ impl Tmux {
         self.cmd(&["send-keys", "-t", "m", k]);
     }
 
-    /// Starts `taxel monitor args` in a new 120 x 40 session; the shell prints the exit code
-    /// after it and stays open so the restored screen can be read.
-    fn start(&self, prefix: &str, args: &str) {
+    /// Starts `taxel monitor args` of pipeline `p` in a new 120 x 40 session; the shell prints
+    /// the exit code after it and stays open so the restored screen can be read.
+    fn start(&self, p: &Pipeline, args: &str) {
         let shell = format!(
-            "TAXEL_PREFIX={prefix} '{TAXEL}' monitor {args}; echo MONITOR_EXIT=$?; sleep 60"
+            "TAXEL_PREFIX={} '{}' monitor {args}; echo MONITOR_EXIT=$?; sleep 60",
+            p.prefix,
+            p.exe().display()
         );
         self.cmd(&["kill-session", "-t", "m"]);
         // Killing the last session makes the tmux server exit; a new-session that reaches it
@@ -111,12 +111,10 @@ fn monitor_shows_live_sensors_switches_and_quits_cleanly() {
         eprintln!("SKIP monitor test: tmux is not installed");
         return;
     }
-    let prefix = unique_prefix("mon");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let out = dir.path().display().to_string();
-    let mut demo = spawn(
+    let mut p = pipeline!("mon");
+    let out = p.dir().display().to_string();
+    let demo = p.spawn(
         "demo",
-        &prefix,
         &[
             "demo",
             "--sensors",
@@ -129,13 +127,13 @@ fn monitor_shows_live_sensors_switches_and_quits_cleanly() {
             &out,
         ],
     );
-    demo.wait_for("[s1]", Duration::from_secs(30));
+    p[demo].wait_for("[s1]", Duration::from_secs(30));
 
     let tmux = Tmux {
-        socket: format!("taxel-test-{prefix}"),
+        socket: format!("taxel-test-{}", p.prefix),
     };
     // Sensors discovered from the service listing.
-    tmux.start(&prefix, "");
+    tmux.start(&p, "");
     let s = tmux.wait_screen("both sensors with live numbers", |s| {
         s.contains("1 s0")
             && s.contains("2 s1")
@@ -148,7 +146,7 @@ fn monitor_shows_live_sensors_switches_and_quits_cleanly() {
     assert!(s.contains("calibration v"), "calibration:\n{s}");
 
     // A calibration edit shows up as a reload.
-    let cal = dir.path().join("calibration.toml");
+    let cal = p.path("calibration.toml");
     let text = std::fs::read_to_string(&cal).expect("demo calibration");
     assert!(text.contains("version = 1"), "{text}");
     std::fs::write(&cal, text.replace("version = 1", "version = 2")).expect("edit calibration");
@@ -201,7 +199,7 @@ fn monitor_shows_live_sensors_switches_and_quits_cleanly() {
     );
 
     // One sensor by flag; Ctrl-C quits cleanly too.
-    tmux.start(&prefix, "--sensor s1");
+    tmux.start(&p, "--sensor s1");
     let s = tmux.wait_screen("sensor s1 with live numbers", |s| {
         s.contains("s1 | view: raw counts") && has_live_numbers(s)
     });
@@ -221,18 +219,17 @@ fn monitor_shows_live_sensors_switches_and_quits_cleanly() {
         "0 1"
     );
 
-    demo.sigint();
-    let st = demo.wait_exit(Duration::from_secs(30));
-    assert!(st.success(), "demo: {st}\n{}", demo.output());
+    p[demo].sigint();
+    p.finish(demo, Duration::from_secs(30));
 }
 
 #[test]
 fn monitor_refuses_bad_flags_before_touching_the_terminal() {
-    let prefix = unique_prefix("monbad");
-    let (code, _, err) = run(&prefix, &["monitor", "--fps", "0"]);
+    let p = pipeline!("monbad");
+    let (code, _, err) = p.run(&["monitor", "--fps", "0"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("--fps"), "{err}");
-    let (code, _, err) = run(&prefix, &["monitor", "--sensor", "a/b"]);
+    let (code, _, err) = p.run(&["monitor", "--sensor", "a/b"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("a/b"), "{err}");
 }

@@ -1,5 +1,5 @@
 //! Nothing on the per-sample hot path allocates: a counting global allocator watches the
-//! calibrator's per-frame computation, both serial parsers, the estimator (including the frames
+//! calibrator's per-frame computation (static, and with every dynamic term and a re-zero), both serial parsers, the estimator (including the frames
 //! that complete a no-load window and its curvature prediction), the logger's record encoding,
 //! the consumers' statistics and the adaptive wake-up's rhythm model, after a warm-up. (iceoryx2's own send and receive are not
 //! counted here.)
@@ -64,6 +64,36 @@ fn hot_paths_do_not_allocate() {
         }
     });
     assert_eq!(n, 0, "calibrator apply allocated {n} times");
+
+    // The same with every dynamic term, through the first frames (the start's warm-up check),
+    // a re-zero on a new no-load window and a load sweeping up and down.
+    let terms = "creep = { tau_s = [0.5, 8], share = [0.03, 0.05], domain = \"force\", bounded = true }\nhysteresis = { threshold_n = [0.2, 1.0], weight = [0.1, 0.1] }\n";
+    let mut text = String::new();
+    for line in include_str!("../calibrations/sim-default.toml").lines() {
+        text.push_str(line);
+        text.push('\n');
+        if line.starts_with("range = ") {
+            text.push_str(terms);
+        }
+    }
+    let cal = Calibration::from_toml_str("d", &text).expect("dynamic cal");
+    let mut d = Calibrator::for_calibration(cal, 60.0);
+    d.set_curvature(&est);
+    let n = allocations(|| {
+        for i in 0..10_000u64 {
+            frame.seq = i;
+            frame.t_capture_ns = i * 1_000_000;
+            frame.counts[5] = (i % 900) as f32;
+            if i == 5_000 {
+                d.set_curvature(&est);
+            }
+            d.apply(&frame, i, &mut out);
+        }
+    });
+    assert_eq!(
+        n, 0,
+        "calibrator apply with dynamic terms allocated {n} times"
+    );
 
     // Serial parsers (buffers grown during warm-up).
     use taxel_publisher::serial::protocol::{encode_binary, AsciiParser, BinaryParser};
@@ -132,36 +162,33 @@ fn hot_paths_do_not_allocate() {
         "estimator allocated {n} times over {estimates} windows"
     );
 
-    // The logger's record encoding: a reused record, appended to a record file.
+    // The logger's record encoding: every payload, as the logger appends it from shared
+    // memory, into a record file.
     let dir = tempfile::tempdir().expect("tempdir");
     let mut w =
         taxel_formats::RecordFileWriter::create(&dir.path().join("a.taxrec")).expect("file");
-    let mut rec = taxel_formats::Record::Raw {
-        sensor: "s0".into(),
-        seq: 0,
-        t_capture_ns: 0,
-        rows: 4,
-        cols: 4,
-        flags: 0,
-        source: 1,
-        full_scale: 1023.0,
-        counts: Vec::with_capacity(16),
-    };
-    let fill = |rec: &mut taxel_formats::Record, i: u64| {
-        if let taxel_formats::Record::Raw { seq, counts, .. } = rec {
-            *seq = i;
-            counts.clear();
-            counts.extend_from_slice(&frame.counts[..16]);
-        }
+    frame.sensor = taxel_msgs::sensor_id_bytes("s0").expect("id");
+    (frame.source, frame.full_scale) = (1, 1023.0);
+    let mut force = out;
+    force.n_blocks = 2;
+    let mut reference = taxel_msgs::Reference::ZERO;
+    reference.trial = -1;
+    let mut append_all = |i: u64| {
+        frame.seq = i;
+        force.seq = i;
+        reference.seq = i;
+        est.seq = i;
+        w.append_message(&frame).expect("append");
+        w.append_message(&force).expect("append");
+        w.append_message(&reference).expect("append");
+        w.append_message(&est).expect("append");
     };
     for i in 0..100 {
-        fill(&mut rec, i);
-        w.append(&rec).expect("append");
+        append_all(i);
     }
     let n = allocations(|| {
         for i in 100..5100 {
-            fill(&mut rec, i);
-            w.append(&rec).expect("append");
+            append_all(i);
         }
     });
     assert_eq!(n, 0, "record encoding allocated {n} times");

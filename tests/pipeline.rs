@@ -4,13 +4,11 @@
 //! version; a corrupt calibration keeps the old model; SIGINT ends everything with exit 0 and
 //! no shared-memory resources are left behind.
 
-mod common;
-
 use std::collections::BTreeMap;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use common::{shm_files, spawn, spawn_calibrator, spawn_logger, spawn_ready, unique_prefix};
 use taxel_formats::{Record, RecordFileReader};
+use taxel_testkit::pipeline;
 
 const SIM_CAL: &str = include_str!("../calibrations/sim-default.toml");
 
@@ -44,79 +42,38 @@ rest_s = 1.0
 
 #[test]
 fn pipeline_streams_tracks_force_hot_reloads_and_shuts_down_clean() {
-    let prefix = unique_prefix("p");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let cal = dir.path().join("cal.toml");
-    std::fs::write(&cal, SIM_CAL).expect("write calibration");
-    let scenario = dir.path().join("scenario.toml");
-    std::fs::write(&scenario, SCENARIO).expect("write scenario");
-    let rec = dir.path().join("run.taxrec");
-    let (cal_s, scen_s, rec_s) = (
-        cal.display().to_string(),
-        scenario.display().to_string(),
-        rec.display().to_string(),
-    );
+    let mut p = pipeline!("p");
+    let cal = p.write("cal.toml", SIM_CAL);
+    let scen_s = p.write("scenario.toml", SCENARIO);
+    let rec = p.path("run.taxrec");
+    let rec_s = p.arg("run.taxrec");
     let limit = Duration::from_secs(20);
 
-    let mut logger = spawn_logger(&prefix, "s0", &rec_s);
-    let mut calibrator = spawn_calibrator(&prefix, "s0", &cal_s);
-    let mut estimator = spawn_ready(
-        "estimator",
-        &prefix,
-        &["estimator", "run", "--sensor", "s0", "--curvature-m1", "40"],
-        "estimator ready",
-    );
-    let mut latency = spawn_ready(
-        "latency",
-        &prefix,
-        &["latency", "--sensor", "s0", "--json", "--seconds", "4"],
-        "latency probe ready",
-    );
-
-    let mut publisher = spawn_ready(
-        "publisher",
-        &prefix,
-        &[
-            "publisher",
-            "--sensor",
-            "s0",
-            "--seconds",
-            "9",
-            "sim",
-            "--scenario",
-            &scen_s,
-        ],
-        "publisher ready",
-    );
-    estimator.wait_for("first no-load baseline", limit);
+    let logger = p.logger("s0", &rec_s, &[]);
+    let calibrator = p.calibrator("s0", &cal, &[]);
+    let estimator = p.estimator("s0", &["--curvature-m1", "40"]);
+    let latency = p.latency("latency", "s0", &["--json", "--seconds", "4"]);
+    let publisher = p.publisher_ready("s0", &["--seconds", "9", "sim", "--scenario", &scen_s]);
+    p[estimator].wait_for("first no-load baseline", limit);
 
     // Hot reload mid-stream: atomic replacement by rename, as editors do.
     std::thread::sleep(Duration::from_secs(3));
-    let tmp = dir.path().join("cal.toml.tmp");
+    let tmp = p.path("cal.toml.tmp");
     std::fs::write(&tmp, SIM_CAL.replacen("version = 1", "version = 2", 1)).expect("tmp");
     std::fs::rename(&tmp, &cal).expect("rename");
     let t_rename_ns = taxel_runtime::now_ns();
-    calibrator.wait_for("calibration reloaded", limit);
+    p[calibrator].wait_for("calibration reloaded", limit);
     // Then a corrupt file, edited in place: refused, version 2 keeps serving.
     std::thread::sleep(Duration::from_millis(1500));
     std::fs::write(&cal, "version = \"three\"\n\u{0}\u{1}garbage").expect("garbage");
-    calibrator.wait_for("calibration rejected", limit);
+    p[calibrator].wait_for("calibration rejected", limit);
 
-    let st = publisher.wait_exit(limit);
-    assert!(st.success(), "publisher: {st}\n{}", publisher.output());
-    let lat = latency.wait_exit(limit);
-    assert!(lat.success(), "latency: {lat}");
-    for p in [&calibrator, &estimator, &logger] {
-        p.sigint();
-    }
-    for p in [&mut calibrator, &mut estimator, &mut logger] {
-        let st = p.wait_exit(limit);
-        let out = p.output();
-        assert!(st.success(), "{} exited with {st}:\n{out}", p.name);
-    }
+    p.finish(publisher, limit);
+    p.finish(latency, limit);
+    p.stop(&[calibrator, estimator, logger]);
 
     // The latency probe printed exactly one JSON object with the documented keys.
-    let out = latency.output();
+    let out = p[latency].output();
     let json: Vec<&str> = out.lines().filter(|l| l.starts_with('{')).collect();
     assert_eq!(json.len(), 1, "{out}");
     for key in [
@@ -138,33 +95,25 @@ fn pipeline_streams_tracks_force_hot_reloads_and_shuts_down_clean() {
     let mut reference = BTreeMap::new();
     for r in RecordFileReader::open(&rec).expect("record file") {
         match r {
-            Record::Raw { seq, .. } => {
-                raw.insert(seq, ());
+            Record::Raw(f) => {
+                raw.insert(f.seq, ());
             }
-            Record::Force {
-                seq,
-                total_force_n,
-                block_force_n,
-                cal_version,
-                flags,
-                t_publish_ns,
-                ..
-            } => {
+            Record::Force(f) => {
                 force.insert(
-                    seq,
+                    f.seq,
                     (
-                        total_force_n,
-                        block_force_n[0],
-                        cal_version,
-                        flags,
-                        t_publish_ns,
+                        f.total_force_n,
+                        f.block_force_n[0],
+                        f.cal_version,
+                        f.flags,
+                        f.t_publish_ns,
                     ),
                 );
             }
-            Record::Reference { seq, force_n, .. } => {
-                reference.insert(seq, force_n);
+            Record::Reference(v) => {
+                reference.insert(v.seq, v.force_n);
             }
-            Record::Curvature { .. } => {}
+            Record::Curvature(_) => {}
         }
     }
     assert!(
@@ -220,75 +169,34 @@ fn pipeline_streams_tracks_force_hot_reloads_and_shuts_down_clean() {
     );
 
     // Nothing left in shared memory once everyone has exited.
-    let t0 = Instant::now();
-    loop {
-        let (alive, dead) = taxel_runtime::ipc::count_nodes(&prefix).expect("list nodes");
-        if alive + dead == 0 {
-            break;
-        }
-        assert!(
-            t0.elapsed() < limit,
-            "{alive} alive, {dead} dead nodes remain"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    taxel_runtime::ipc::release_prefix(&prefix).expect("release");
-    assert_eq!(shm_files(&prefix), Vec::<String>::new());
+    p.assert_released(limit);
 }
 
 #[test]
 fn late_calibrator_gets_the_latest_curvature_from_history() {
-    let prefix = unique_prefix("h");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let cal = dir.path().join("cal.toml");
-    std::fs::write(&cal, SIM_CAL).expect("write calibration");
-    let scenario = dir.path().join("scenario.toml");
+    let mut p = pipeline!("h");
+    let cal = p.write("cal.toml", SIM_CAL);
     // One baseline at the start, then the sensor stays loaded: no new estimate is published.
-    std::fs::write(
-        &scenario,
+    let scen_s = p.write(
+        "scenario.toml",
         "rate_hz = 200\nmounting = { curvature_m1 = 30 }\n[[step]]\nkind = \"rest\"\nduration_s = 1.0\n[[step]]\nkind = \"ramp\"\nforce_n = 5\nduration_s = 0.3\n[[step]]\nkind = \"rest\"\nduration_s = 30\n",
-    )
-    .expect("write scenario");
-    let rec = dir.path().join("late.taxrec");
-    let (cal_s, scen_s, rec_s) = (
-        cal.display().to_string(),
-        scenario.display().to_string(),
-        rec.display().to_string(),
     );
+    let rec = p.path("late.taxrec");
+    let rec_s = p.arg("late.taxrec");
     let limit = Duration::from_secs(20);
-    let mut estimator = spawn_ready(
-        "estimator",
-        &prefix,
-        &["estimator", "run", "--sensor", "s0", "--curvature-m1", "30"],
-        "estimator ready",
-    );
-    let mut publisher = spawn(
-        "publisher",
-        &prefix,
-        &["publisher", "--sensor", "s0", "sim", "--scenario", &scen_s],
-    );
-    estimator.wait_for("first no-load baseline", limit);
+    let estimator = p.estimator("s0", &["--curvature-m1", "30"]);
+    let publisher = p.publisher("s0", &["sim", "--scenario", &scen_s]);
+    p[estimator].wait_for("first no-load baseline", limit);
     // Wait until the press is on, then start the consumers.
     std::thread::sleep(Duration::from_millis(1500));
-    let mut logger = spawn_logger(&prefix, "s0", &rec_s);
-    let mut calibrator = spawn_calibrator(&prefix, "s0", &cal_s);
+    let logger = p.logger("s0", &rec_s, &[]);
+    let calibrator = p.calibrator("s0", &cal, &[]);
     std::thread::sleep(Duration::from_secs(2));
-    for p in [&calibrator, &logger, &publisher, &estimator] {
-        p.sigint();
-    }
-    for p in [&mut calibrator, &mut logger, &mut publisher, &mut estimator] {
-        let st = p.wait_exit(limit);
-        assert!(st.success(), "{} exited with {st}", p.name);
-    }
+    p.stop(&[calibrator, logger, publisher, estimator]);
     let forces: Vec<(u32, f32, f32)> = RecordFileReader::open(&rec)
         .expect("record file")
         .filter_map(|r| match r {
-            Record::Force {
-                flags,
-                total_force_n,
-                curvature_m1,
-                ..
-            } => Some((flags, total_force_n, curvature_m1)),
+            Record::Force(f) => Some((f.flags, f.total_force_n, f.curvature_m1)),
             _ => None,
         })
         .collect();
@@ -306,64 +214,18 @@ fn late_calibrator_gets_the_latest_curvature_from_history() {
 
 #[test]
 fn every_wake_mode_receives_every_sample() {
-    let prefix = unique_prefix("w");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let cal = dir.path().join("cal.toml");
-    std::fs::write(&cal, SIM_CAL).expect("write calibration");
-    let cal_s = cal.display().to_string();
+    let mut p = pipeline!("w");
+    let cal = p.write("cal.toml", SIM_CAL);
     let limit = Duration::from_secs(20);
-    let mut calibrator = spawn_ready(
-        "calibrator",
-        &prefix,
-        &[
-            "calibrator",
-            "run",
-            "--sensor",
-            "s0",
-            "--calibration",
-            &cal_s,
-            "--wake",
-            "adaptive",
-        ],
-        "calibrator ready",
-    );
-    let mut probes: Vec<_> = ["event", "busy", "adaptive"]
+    let calibrator = p.calibrator("s0", &cal, &["--wake", "adaptive"]);
+    let probes: Vec<_> = ["event", "busy", "adaptive"]
         .iter()
-        .map(|m| {
-            spawn_ready(
-                m,
-                &prefix,
-                &[
-                    "latency",
-                    "--sensor",
-                    "s0",
-                    "--seconds",
-                    "3",
-                    "--json",
-                    "--wake",
-                    m,
-                ],
-                "latency probe ready",
-            )
-        })
+        .map(|m| p.latency(m, "s0", &["--seconds", "3", "--json", "--wake", m]))
         .collect();
-    let mut publisher = spawn(
-        "publisher",
-        &prefix,
-        &[
-            "publisher",
-            "--sensor",
-            "s0",
-            "--seconds",
-            "4",
-            "sim",
-            "--rate-hz",
-            "500",
-        ],
-    );
-    for p in probes.iter_mut() {
-        let st = p.wait_exit(limit);
-        assert!(st.success(), "{} probe exited {st}", p.name);
+    let publisher = p.publisher("s0", &["--seconds", "4", "sim", "--rate-hz", "500"]);
+    for probe in probes {
+        p.finish(probe, limit);
+        let p = &mut p[probe];
         let out = p.output();
         let json = out.lines().find(|l| l.starts_with('{')).expect("json");
         let field = |k: &str| -> f64 {
@@ -384,7 +246,6 @@ fn every_wake_mode_receives_every_sample() {
             assert!(timed > 0.5 * field("\"received\": "), "adaptive: {json}");
         }
     }
-    assert!(publisher.wait_exit(limit).success());
-    calibrator.sigint();
-    assert!(calibrator.wait_exit(limit).success());
+    p.finish(publisher, limit);
+    p.stop(&[calibrator]);
 }

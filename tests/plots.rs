@@ -2,11 +2,9 @@
 //! PNG next to a report when given `--plots DIR` (`taxel evaluate table1` and `taxel bench`
 //! always do, into their --out). The SVGs carry the axis titles with units and the legend.
 
-mod common;
-
 use std::path::Path;
 
-use common::{run, unique_prefix};
+use taxel_testkit::pipeline;
 
 /// Both formats exist, the PNG is a PNG, and the SVG shows every expected text.
 fn check_figure(dir: &Path, stem: &str, texts: &[&str]) {
@@ -20,33 +18,25 @@ fn check_figure(dir: &Path, stem: &str, texts: &[&str]) {
 
 #[test]
 fn offline_commands_write_svg_and_png_figures_next_to_their_reports() {
-    let prefix = unique_prefix("plt");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let p = |s: &str| dir.path().join(s).display().to_string();
+    let pl = pipeline!("plt");
+    let p = |s: &str| pl.arg(s);
 
     // Calibration: the simulated Table I run gives fixtures, objects and both calibrations.
-    let (code, out, err) = run(&prefix, &["evaluate", "table1", "--out", &p("t1")]);
+    let (code, out, err) = pl.run(&["evaluate", "table1", "--out", &p("t1")]);
     assert_eq!(code, 0, "{out}\n{err}");
-    check_figure(
-        &dir.path().join("t1"),
-        "error-vs-curvature",
-        &["curvature (1/m)"],
-    );
-    let (code, out, err) = run(
-        &prefix,
-        &[
-            "calibrator",
-            "fit",
-            "--data",
-            &p("t1/fixtures.csv.gz"),
-            "--out",
-            &p("cal.toml"),
-            "--plots",
-            &p("fit"),
-        ],
-    );
+    check_figure(&pl.path("t1"), "error-vs-curvature", &["curvature (1/m)"]);
+    let (code, out, err) = pl.run(&[
+        "calibrator",
+        "fit",
+        "--data",
+        &p("t1/fixtures.csv.gz"),
+        "--out",
+        &p("cal.toml"),
+        "--plots",
+        &p("fit"),
+    ]);
     assert_eq!(code, 0, "{out}\n{err}");
-    let fit = dir.path().join("fit");
+    let fit = pl.path("fit");
     check_figure(
         &fit,
         "calibration-surface-array",
@@ -64,25 +54,22 @@ fn offline_commands_write_svg_and_png_figures_next_to_their_reports() {
         env!("CARGO_MANIFEST_DIR"),
         "/models/curvature-default.taxcrv"
     );
-    let (code, out, err) = run(
-        &prefix,
-        &[
-            "calibrator",
-            "eval",
-            "--curvature-model",
-            model,
-            "--calibration",
-            &p("t1/curvature.toml"),
-            "--flat",
-            &p("t1/flat.toml"),
-            "--recording",
-            &p("t1/object-tuna-can.csv.gz"),
-            "--plots",
-            &p("ceval"),
-        ],
-    );
+    let (code, out, err) = pl.run(&[
+        "calibrator",
+        "eval",
+        "--curvature-model",
+        model,
+        "--calibration",
+        &p("t1/curvature.toml"),
+        "--flat",
+        &p("t1/flat.toml"),
+        "--recording",
+        &p("t1/object-tuna-can.csv.gz"),
+        "--plots",
+        &p("ceval"),
+    ]);
     assert_eq!(code, 0, "{out}\n{err}");
-    let ceval = dir.path().join("ceval");
+    let ceval = pl.path("ceval");
     check_figure(
         &ceval,
         "force-vs-time",
@@ -103,28 +90,22 @@ fn offline_commands_write_svg_and_png_figures_next_to_their_reports() {
     assert!(json.starts_with("{\"curvature_pred_m1\": "), "{json}");
 
     // Curvature models: a small simulated dataset, a ridge model, its evaluation.
-    let (code, out, err) = run(
-        &prefix,
-        &["estimator", "dataset", "--out", &p("ds"), "--sensors", "1"],
-    );
+    let (code, out, err) = pl.run(&["estimator", "dataset", "--out", &p("ds"), "--sensors", "1"]);
     assert_eq!(code, 0, "{out}\n{err}");
-    let (code, out, err) = run(
-        &prefix,
-        &[
-            "estimator",
-            "train",
-            "--data",
-            &p("ds/sensor0.csv.gz"),
-            "--out",
-            &p("m.taxcrv"),
-            "--model",
-            "ridge",
-            "--plots",
-            &p("train"),
-        ],
-    );
+    let (code, out, err) = pl.run(&[
+        "estimator",
+        "train",
+        "--data",
+        &p("ds/sensor0.csv.gz"),
+        "--out",
+        &p("m.taxcrv"),
+        "--model",
+        "ridge",
+        "--plots",
+        &p("train"),
+    ]);
     assert_eq!(code, 0, "{out}\n{err}");
-    let train = dir.path().join("train");
+    let train = pl.path("train");
     check_figure(
         &train,
         "predicted-vs-true",
@@ -141,21 +122,18 @@ fn offline_commands_write_svg_and_png_figures_next_to_their_reports() {
     );
     let md = std::fs::read_to_string(train.join("train.md")).expect("train.md");
     assert!(md.contains("validation") && md.contains("R^2"), "{md}");
-    let (code, out, err) = run(
-        &prefix,
-        &[
-            "estimator",
-            "eval",
-            "--model",
-            &p("m.taxcrv"),
-            "--data",
-            &p("ds/sensor0.csv.gz"),
-            "--plots",
-            &p("eval"),
-        ],
-    );
+    let (code, out, err) = pl.run(&[
+        "estimator",
+        "eval",
+        "--model",
+        &p("m.taxcrv"),
+        "--data",
+        &p("ds/sensor0.csv.gz"),
+        "--plots",
+        &p("eval"),
+    ]);
     assert_eq!(code, 0, "{out}\n{err}");
-    let eval = dir.path().join("eval");
+    let eval = pl.path("eval");
     check_figure(&eval, "predicted-vs-true", &["true curvature (1/m)"]);
     check_figure(&eval, "error-vs-curvature", &["true curvature (1/m)"]);
     let json = std::fs::read_to_string(eval.join("eval.json")).expect("eval.json");

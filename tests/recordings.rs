@@ -2,12 +2,10 @@
 //! back with the `mcap` crate itself (every message, in order, with its values and capture
 //! time), then played back from the MCAP by the publisher and recorded again.
 
-mod common;
-
 use std::time::Duration;
 
-use common::{run, spawn_ready, unique_prefix};
 use taxel_formats::{Record, RecordFileReader};
+use taxel_testkit::pipeline;
 
 fn f(v: &serde_json::Value) -> f32 {
     v.as_f64().map_or(f32::NAN, |x| x as f32)
@@ -26,94 +24,67 @@ fn same_vec(json: &serde_json::Value, v: &[f32]) -> bool {
 fn check(msg: &mcap::Message<'_>, rec: &Record) {
     let j: serde_json::Value = serde_json::from_slice(&msg.data).expect("JSON message");
     let ctx = format!("{} {j}", msg.channel.topic);
-    let (stream, sensor, seq, t) = match rec {
-        Record::Raw {
-            sensor,
-            seq,
-            t_capture_ns,
-            rows,
-            cols,
-            counts,
-            ..
-        } => {
-            assert_eq!(j["rows"], *rows, "{ctx}");
-            assert_eq!(j["cols"], *cols, "{ctx}");
-            assert!(same_vec(&j["counts"], counts), "{ctx}");
-            ("raw", sensor, seq, t_capture_ns)
+    let stream = match rec {
+        Record::Raw(r) => {
+            assert_eq!(j["rows"], r.rows, "{ctx}");
+            assert_eq!(j["cols"], r.cols, "{ctx}");
+            assert!(same_vec(&j["counts"], r.nodes()), "{ctx}");
+            "raw"
         }
-        Record::Curvature {
-            sensor,
-            seq,
-            t_capture_ns,
-            curvature_m1,
-            curvature_sd_m1,
-            baseline,
-            ..
-        } => {
-            assert!(same_f32(f(&j["curvature_m1"]), *curvature_m1), "{ctx}");
+        Record::Curvature(e) => {
+            assert!(same_f32(f(&j["curvature_m1"]), e.curvature_m1), "{ctx}");
             assert!(
-                same_f32(f(&j["curvature_sd_m1"]), *curvature_sd_m1),
+                same_f32(f(&j["curvature_sd_m1"]), e.curvature_sd_m1),
                 "{ctx}"
             );
-            assert!(same_vec(&j["baseline"], baseline), "{ctx}");
-            ("curvature", sensor, seq, t_capture_ns)
+            assert!(
+                same_vec(&j["baseline"], &e.baseline[..e.n_nodes()]),
+                "{ctx}"
+            );
+            "curvature"
         }
-        Record::Force {
-            sensor,
-            seq,
-            t_capture_ns,
-            t_publish_ns,
-            total_force_n,
-            cal_version,
-            block_force_n,
-            block_reading,
-            ..
-        } => {
-            assert_eq!(msg.publish_time, *t_publish_ns, "{ctx}");
-            assert!(same_f32(f(&j["total_force_n"]), *total_force_n), "{ctx}");
-            assert_eq!(j["cal_version"], *cal_version, "{ctx}");
-            assert!(same_vec(&j["block_force_n"], block_force_n), "{ctx}");
-            assert!(same_vec(&j["block_reading"], block_reading), "{ctx}");
-            ("force", sensor, seq, t_capture_ns)
+        Record::Force(s) => {
+            assert_eq!(msg.publish_time, s.t_publish_ns, "{ctx}");
+            assert!(same_f32(f(&j["total_force_n"]), s.total_force_n), "{ctx}");
+            assert_eq!(j["cal_version"], s.cal_version, "{ctx}");
+            assert!(same_vec(&j["block_force_n"], s.blocks()), "{ctx}");
+            let readings = &s.block_reading[..s.n_blocks as usize];
+            assert!(same_vec(&j["block_reading"], readings), "{ctx}");
+            // Recorded and exported since the formats follow the message table.
+            assert_eq!(
+                j["curvature_model_version"], s.curvature_model_version,
+                "{ctx}"
+            );
+            "force"
         }
-        Record::Reference {
-            sensor,
-            seq,
-            t_capture_ns,
-            force_n,
-            curvature_m1,
-            trial,
-            ..
-        } => {
-            assert!(same_f32(f(&j["force_n"]), *force_n), "{ctx}");
-            assert!(same_f32(f(&j["curvature_m1"]), *curvature_m1), "{ctx}");
-            assert_eq!(j["trial"], *trial, "{ctx}");
-            ("reference", sensor, seq, t_capture_ns)
+        Record::Reference(v) => {
+            assert!(same_f32(f(&j["force_n"]), v.force_n), "{ctx}");
+            assert!(same_f32(f(&j["curvature_m1"]), v.curvature_m1), "{ctx}");
+            assert_eq!(j["trial"], v.trial, "{ctx}");
+            "reference"
         }
     };
+    let (sensor, seq, t) = (rec.sensor(), rec.seq(), rec.t_capture_ns());
     assert_eq!(msg.channel.topic, format!("/taxel/{sensor}/{stream}"));
     assert_eq!(msg.channel.message_encoding, "json");
     let schema = msg.channel.schema.as_ref().expect("schema");
     assert_eq!(schema.encoding, "jsonschema");
     let s: serde_json::Value = serde_json::from_slice(&schema.data).expect("schema JSON");
     assert_eq!(s["type"], "object");
-    assert_eq!(j["seq"], *seq, "{ctx}");
-    assert_eq!(j["t_capture_ns"], *t, "{ctx}");
-    assert_eq!(j["sensor"], sensor.as_str(), "{ctx}");
-    assert_eq!(msg.log_time, *t, "{ctx}");
+    assert_eq!(j["seq"], seq, "{ctx}");
+    assert_eq!(j["t_capture_ns"], t, "{ctx}");
+    assert_eq!(j["sensor"], sensor, "{ctx}");
+    assert_eq!(msg.log_time, t, "{ctx}");
 }
 
 #[test]
 fn demo_recording_exports_to_mcap_and_replays_from_it() {
-    let prefix = unique_prefix("m");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let out = dir.path().display().to_string();
-    let (code, stdout, stderr) = run(
-        &prefix,
-        &["demo", "--seconds", "4", "--rate-hz", "200", "--out", &out],
-    );
+    let p = pipeline!("m");
+    let out = p.dir().display().to_string();
+    let (code, stdout, stderr) =
+        p.run(&["demo", "--seconds", "4", "--rate-hz", "200", "--out", &out]);
     assert_eq!(code, 0, "demo failed:\n{stdout}\n{stderr}");
-    let taxrec = dir.path().join("demo.taxrec");
+    let taxrec = p.path("demo.taxrec");
     let records: Vec<Record> = RecordFileReader::open(&taxrec)
         .expect("record file")
         .collect();
@@ -123,10 +94,10 @@ fn demo_recording_exports_to_mcap_and_replays_from_it() {
             .filter(|r| {
                 matches!(
                     (want, r),
-                    ("raw", Record::Raw { .. })
-                        | ("force", Record::Force { .. })
-                        | ("curvature", Record::Curvature { .. })
-                        | ("reference", Record::Reference { .. })
+                    ("raw", Record::Raw(_))
+                        | ("force", Record::Force(_))
+                        | ("curvature", Record::Curvature(_))
+                        | ("reference", Record::Reference(_))
                 )
             })
             .count()
@@ -136,17 +107,14 @@ fn demo_recording_exports_to_mcap_and_replays_from_it() {
     }
 
     // Export and read back with the mcap crate.
-    let mcap_path = dir.path().join("demo.mcap");
-    let (code, stdout, stderr) = run(
-        &prefix,
-        &[
-            "logger",
-            "export",
-            &taxrec.display().to_string(),
-            "--mcap",
-            &mcap_path.display().to_string(),
-        ],
-    );
+    let mcap_path = p.path("demo.mcap");
+    let (code, stdout, stderr) = p.run(&[
+        "logger",
+        "export",
+        &taxrec.display().to_string(),
+        "--mcap",
+        &mcap_path.display().to_string(),
+    ]);
     assert_eq!(code, 0, "export failed:\n{stdout}\n{stderr}");
     assert!(
         stdout.contains(&format!("{} messages", records.len())),
@@ -181,47 +149,32 @@ fn demo_recording_exports_to_mcap_and_replays_from_it() {
 
     // Replay the MCAP's raw channel as sensor r0 and record it again: every frame, in order,
     // with the same counts.
-    let prefix2 = unique_prefix("mr");
-    let again = dir.path().join("again.taxrec");
-    let mut logger = spawn_ready(
-        "logger",
-        &prefix2,
-        &[
-            "logger",
-            "record",
-            "--sensor",
-            "r0",
-            "--out",
-            &again.display().to_string(),
-        ],
-        "logger ready",
-    );
-    let (code, stdout, stderr) = run(
-        &prefix2,
-        &[
-            "publisher",
-            "--sensor",
-            "r0",
-            "replay",
-            &mcap_path.display().to_string(),
-            "--speed",
-            "4",
-        ],
-    );
+    let mut p2 = pipeline!("mr");
+    let again = p.path("again.taxrec");
+    let logger = p2.logger("r0", &again.display().to_string(), &[]);
+    let (code, stdout, stderr) = p2.run(&[
+        "publisher",
+        "--sensor",
+        "r0",
+        "replay",
+        &mcap_path.display().to_string(),
+        "--speed",
+        "4",
+    ]);
     assert_eq!(code, 0, "replay failed:\n{stdout}\n{stderr}");
-    logger.sigint();
-    assert!(logger.wait_exit(Duration::from_secs(20)).success());
+    p2[logger].sigint();
+    p2.finish(logger, Duration::from_secs(20));
     let original: Vec<Vec<f32>> = records
         .iter()
         .filter_map(|r| match r {
-            Record::Raw { counts, .. } => Some(counts.clone()),
+            Record::Raw(f) => Some(f.nodes().to_vec()),
             _ => None,
         })
         .collect();
     let replayed: Vec<Vec<f32>> = RecordFileReader::open(&again)
         .expect("replayed record file")
         .filter_map(|r| match r {
-            Record::Raw { counts, .. } => Some(counts),
+            Record::Raw(f) => Some(f.nodes().to_vec()),
             _ => None,
         })
         .collect();
@@ -229,18 +182,8 @@ fn demo_recording_exports_to_mcap_and_replays_from_it() {
     assert!(replayed == original, "replayed counts differ");
 
     // A damaged MCAP is refused with a one-line error naming it (exit 2).
-    let cut = dir.path().join("cut.mcap");
-    std::fs::write(&cut, &bytes[..bytes.len() / 3]).expect("write cut file");
-    let (code, _, err) = run(
-        &prefix2,
-        &[
-            "publisher",
-            "--sensor",
-            "r0",
-            "replay",
-            &cut.display().to_string(),
-        ],
-    );
+    let cut = p.write("cut.mcap", &bytes[..bytes.len() / 3]);
+    let (code, _, err) = p2.run(&["publisher", "--sensor", "r0", "replay", &cut]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("cut.mcap: unreadable after"), "{err}");
 }

@@ -3,17 +3,18 @@
 //! path is a symlink re-pointed at a new pty). The publisher, a separate process, must deliver
 //! every valid frame in order with the gap flag exactly where frames were lost.
 
-mod common;
-
 use std::io::Write;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::{spawn, unique_prefix, Proc};
 use serialport::{SerialPort, TTYPort};
 use taxel_formats::{Record, RecordFileReader};
 use taxel_msgs::raw_flags;
 use taxel_publisher::serial::protocol::encode_binary;
+use taxel_testkit::pipeline;
+
+/// How long the publisher may take to report what happened on the line.
+const SEEN_WITHIN: Duration = Duration::from_secs(15);
 
 fn counts(seq: u32) -> Vec<u16> {
     (0..16)
@@ -86,55 +87,21 @@ fn repoint(link: &Path, target: &str) {
     std::fs::rename(&tmp, link).expect("rename");
 }
 
-fn wait_count(p: &mut Proc, needle: &str, n: usize) {
-    let t0 = Instant::now();
-    loop {
-        p.pump();
-        if p.seen.iter().filter(|l| l.contains(needle)).count() >= n {
-            return;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(15),
-            "no {n} x {needle:?}:\n{}",
-            p.output()
-        );
-        std::thread::sleep(Duration::from_millis(10));
-    }
-}
-
 fn scenario(wire: Wire) {
-    let prefix = unique_prefix("s");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let link = dir.path().join("ttyTAXEL");
+    let mut p = pipeline!("s");
+    let link = p.path("ttyTAXEL");
     let (mut master, slave) = pair();
     repoint(&link, &slave.name().expect("slave name"));
-    let rec = dir.path().join("serial.taxrec");
-    let limit = Duration::from_secs(20);
-    let mut logger = spawn(
-        "logger",
-        &prefix,
-        &[
-            "logger",
-            "record",
-            "--sensor",
-            "s0",
-            "--out",
-            &rec.display().to_string(),
-        ],
-    );
-    logger.wait_for("logger ready", limit);
+    let rec = p.path("serial.taxrec");
+    let logger = p.logger("s0", &rec.display().to_string(), &[]);
     let format = if wire == Wire::Binary {
         "auto"
     } else {
         "ascii"
     };
-    let mut publisher = spawn(
-        "publisher",
-        &prefix,
+    let publisher = p.publisher(
+        "s0",
         &[
-            "publisher",
-            "--sensor",
-            "s0",
             "serial",
             "--port",
             &link.display().to_string(),
@@ -144,7 +111,7 @@ fn scenario(wire: Wire) {
             "0.3",
         ],
     );
-    wait_count(&mut publisher, "serial port open", 1);
+    p[publisher].wait_count("serial port open", 1, SEEN_WITHIN);
     drop(slave);
     let mut sent = Vec::new();
     let mut lost_before = Vec::new();
@@ -165,29 +132,22 @@ fn scenario(wire: Wire) {
     master
         .write_all(&partial[..partial.len() / 2])
         .expect("partial");
-    wait_count(&mut publisher, "serial device stalled", 1);
+    p[publisher].wait_count("serial device stalled", 1, SEEN_WITHIN);
     lost_before.push(601);
     write_frames(&mut master, wire, 601, 900, &mut sent);
     // Unplug: the pty goes away; replug on a new one at the same path.
     std::thread::sleep(Duration::from_millis(100));
     drop(master);
-    wait_count(&mut publisher, "serial device lost", 1);
+    p[publisher].wait_count("serial device lost", 1, SEEN_WITHIN);
     let (mut master, slave) = pair();
     repoint(&link, &slave.name().expect("slave name"));
-    wait_count(&mut publisher, "serial port open", 2);
+    p[publisher].wait_count("serial port open", 2, SEEN_WITHIN);
     drop(slave);
     lost_before.push(1000);
     write_frames(&mut master, wire, 1000, 1300, &mut sent);
     std::thread::sleep(Duration::from_millis(300));
-    for p in [&publisher, &logger] {
-        p.sigint();
-    }
-    for p in [&mut publisher, &mut logger] {
-        let st = p.wait_exit(limit);
-        let o = p.output();
-        assert!(st.success(), "{} exited {st}:\n{o}", p.name);
-    }
-    let out = publisher.output();
+    p.stop(&[publisher, logger]);
+    let out = p[publisher].output();
     assert!(
         out.contains("serial format detected: Binary") || wire == Wire::Ascii,
         "{out}"
@@ -195,9 +155,7 @@ fn scenario(wire: Wire) {
     let frames: Vec<(u64, u32, Vec<f32>)> = RecordFileReader::open(&rec)
         .expect("recording")
         .filter_map(|r| match r {
-            Record::Raw {
-                seq, flags, counts, ..
-            } => Some((seq, flags, counts)),
+            Record::Raw(f) => Some((f.seq, f.flags, f.nodes().to_vec())),
             _ => None,
         })
         .collect();

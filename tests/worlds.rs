@@ -3,11 +3,9 @@
 //! (../shared/data, read in place; those parts are skipped with a message when it is absent),
 //! and reports every number per world.
 
-mod common;
-
 use std::path::PathBuf;
 
-use common::{run, unique_prefix};
+use taxel_testkit::pipeline;
 
 fn shared() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data")
@@ -15,28 +13,24 @@ fn shared() -> PathBuf {
 
 #[test]
 fn worlds_reports_each_family_world_b_and_the_real_recordings() {
-    let prefix = unique_prefix("w");
-    let dir = tempfile::tempdir().expect("tempdir");
-    let out = dir.path().join("worlds");
+    let p = pipeline!("w");
+    let out = p.path("worlds");
     let shared = shared();
-    let (code, stdout, err) = run(
-        &prefix,
-        &[
-            "evaluate",
-            "worlds",
-            "--families",
-            "alt",
-            "--seeds",
-            "103",
-            "--epochs",
-            "150",
-            "--out",
-            &out.display().to_string(),
-            "--shared",
-            &shared.display().to_string(),
-            "--json",
-        ],
-    );
+    let (code, stdout, err) = p.run(&[
+        "evaluate",
+        "worlds",
+        "--families",
+        "alt",
+        "--seeds",
+        "103",
+        "--epochs",
+        "150",
+        "--out",
+        &out.display().to_string(),
+        "--shared",
+        &shared.display().to_string(),
+        "--json",
+    ]);
     assert_eq!(code, 0, "{err}");
     assert_eq!(stdout.lines().count(), 1, "{stdout}");
     let v: serde_json::Value = serde_json::from_str(&stdout).expect("one JSON object");

@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use taxel_formats::Readout;
 use taxel_msgs::MAX_BLOCKS;
 
-use crate::dynamics::{Creep, CreepSpec};
+use crate::dynamics::{Creep, CreepSpec, Dynamics, Hysteresis, HysteresisSpec};
 
 pub use crate::forms::{validate_model, Model, ModelSpec, Term};
 
@@ -56,9 +56,12 @@ pub struct BlockSpec {
     pub nodes: Option<Vec<usize>>,
     pub model: ModelSpec,
     pub range: RangeSpec,
-    /// Optional creep of the reading under a held load (docs/formats.md; `dynamics`).
+    /// Optional creep under a held load (docs/formats.md; `dynamics`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub creep: Option<CreepSpec>,
+    /// Optional rate-independent hysteresis of the force (docs/formats.md; `dynamics`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hysteresis: Option<HysteresisSpec>,
 }
 
 /// A calibration file.
@@ -110,8 +113,8 @@ pub struct Block {
     /// Node indices; empty means the whole array.
     pub nodes: Vec<usize>,
     pub model: Model,
-    /// Creep of the reading, corrected before the model (None: static).
-    pub creep: Option<Creep>,
+    /// Dynamic terms (creep, hysteresis), corrected around the model (none: static).
+    pub dynamics: Dynamics,
     s_range: [f64; 2],
     c_range: [f64; 2],
     s_max_by_c: Vec<[f64; 2]>,
@@ -149,6 +152,35 @@ impl Block {
     /// Declared `[min, max]` of S and of C.
     pub fn ranges(&self) -> ([f64; 2], [f64; 2]) {
         (self.s_range, self.c_range)
+    }
+
+    /// The reading at which the block's force is `f` at curvature `c`, within the declared
+    /// range (the model is increasing there); below the force at the range's lowest reading it
+    /// continues with the slope there, above its highest it is the highest reading.
+    pub fn reading_for(&self, f: f64, c: f64) -> f64 {
+        let c = c.clamp(self.c_range[0], self.c_range[1]);
+        let (mut lo, mut hi) = (self.s_range[0], self.s_max(c));
+        let f_lo = self.poly(lo, c);
+        if f <= f_lo {
+            let slope = self.slope(lo, c);
+            return if slope > 0.0 {
+                lo + (f - f_lo) / slope
+            } else {
+                lo
+            };
+        }
+        if self.poly(hi, c) <= f {
+            return hi;
+        }
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if self.poly(mid, c) < f {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        0.5 * (lo + hi)
     }
 
     /// The raw model, without range handling.
@@ -252,16 +284,23 @@ fn validate_block(spec: &BlockSpec, n_nodes: usize, whole_array: bool) -> Result
         }
         prev_c = p[0];
     }
-    let creep = spec
-        .creep
-        .as_ref()
-        .map(|c| Creep::from_spec(name, c))
-        .transpose()?;
+    let dynamics = Dynamics {
+        creep: spec
+            .creep
+            .as_ref()
+            .map(|c| Creep::from_spec(name, c))
+            .transpose()?,
+        hysteresis: spec
+            .hysteresis
+            .as_ref()
+            .map(|h| Hysteresis::from_spec(name, h))
+            .transpose()?,
+    };
     let block = Block {
         name: name.clone(),
         nodes,
         model,
-        creep,
+        dynamics,
         s_range: r.s,
         c_range: r.curvature_m1,
         s_max_by_c: r.s_max_by_curvature.clone(),
@@ -292,6 +331,11 @@ fn validate_block(spec: &BlockSpec, n_nodes: usize, whole_array: bool) -> Result
 }
 
 impl Calibration {
+    /// The whole array, then each block, in the order of the ForceSample.
+    pub fn all_blocks(&self) -> impl Iterator<Item = &Block> {
+        std::iter::once(&self.array).chain(self.blocks.iter().take(MAX_BLOCKS))
+    }
+
     /// Parses and validates calibration text; `path` is used in messages.
     pub fn from_toml_str(path: &str, text: &str) -> Result<Calibration, CalibrationError> {
         let file: CalibrationFile = toml::from_str(text).map_err(|e| CalibrationError::Parse {

@@ -1,20 +1,18 @@
 //! taxel-calibrator owns force calibration: the calibration file format and its validation
-//! (`calibration`), the model forms it can hold (`forms`), fitting calibrations from recordings (`fit`), hot reload of the file while
-//! the stream runs (`reload`), and the calibrator process that turns raw frames plus the latest
-//! curvature estimate into `ForceSample`s (`run`).
+//! (`calibration`), the model forms it can hold (`forms`), fitting calibrations from recordings
+//! (`fit`), hot reload of the file while the stream runs (`reload`), the dynamic terms and their state (`dynamics`), the figures of a
+//! fit (`plots`), and the calibrator process that turns raw frames plus the latest curvature
+//! estimate into `ForceSample`s (`run`). The offline evaluation that runs it beside the
+//! estimator lives in taxel-evaluation.
 
 pub mod calibration;
 pub mod cli;
 pub mod dynamics;
-pub mod evaluate;
 pub mod fit;
 pub mod forms;
-pub mod holds;
 pub mod plots;
 pub mod reload;
 pub mod run;
-pub mod table1;
-pub mod worlds;
 
 /// Nodes of the central 2 x 2 block (the paper's indenter), or of the whole array when it is
 /// smaller, row-major.

@@ -17,7 +17,7 @@ use taxel_runtime::{now_ns, Shutdown};
 use tracing::{debug, error, info};
 
 use crate::calibration::Calibration;
-use crate::dynamics::CreepState;
+use crate::dynamics::State;
 use crate::reload::{Loaded, Watcher};
 
 /// Calibrator settings.
@@ -56,14 +56,16 @@ pub struct Calibrator {
     has_base: bool,
     curvature: Option<(f32, u64, u32)>,
     stale_ns: u64,
-    /// Creep states of the whole array (0) and of each block (1..), and the capture time of
+    /// Dynamic states of the whole array (0) and of each block (1..), and the capture time of
     /// the last frame they were advanced at.
-    creep: [CreepState; 1 + MAX_BLOCKS],
+    states: [State; 1 + MAX_BLOCKS],
     last_t_ns: Option<u64>,
     /// Apply the file's dynamic terms (off: the static calibration alone, for comparison).
     dynamics: bool,
     /// Whether the dynamic states are known (see `DYNAMICS_WARMING`).
     warm: Warm,
+    /// Capture time of the end of the no-load window the zero in use came from.
+    zero_t_ns: Option<u64>,
 }
 
 /// What the calibrator knows of its dynamic states.
@@ -71,7 +73,8 @@ pub struct Calibrator {
 enum Warm {
     /// No frame with a baseline yet.
     Unchecked,
-    /// Started under load: not known until this capture time.
+    /// Started under load or restarted: not known until this capture time and until every
+    /// play has been swept.
     Until(u64),
     /// Known (started at rest, or long enough ago, or no dynamic terms).
     Known,
@@ -86,10 +89,11 @@ impl Calibrator {
             has_base: false,
             curvature: None,
             stale_ns: (curvature_stale_s.max(0.0) * 1e9) as u64,
-            creep: [[0.0; crate::dynamics::MAX_TERMS]; 1 + MAX_BLOCKS],
+            states: [State::REST; 1 + MAX_BLOCKS],
             last_t_ns: None,
             dynamics: true,
             warm: Warm::Unchecked,
+            zero_t_ns: None,
         };
         c.refresh_base();
         c
@@ -128,14 +132,24 @@ impl Calibrator {
         }
     }
 
-    /// Takes a new baseline and curvature.
+    /// Takes a new baseline (the zero of every block's reading) and curvature. With dynamic
+    /// terms, each block keeps as a credit what its terms predict the no-load window holds
+    /// (`dynamics::State::rezero`), so only the drift they do not explain is taken out.
     pub fn set_curvature(&mut self, est: &CurvatureEstimate) {
         let b = self
             .baseline
             .get_or_insert_with(|| Box::new([0.0; MAX_NODES]));
         b.copy_from_slice(&est.baseline);
         self.curvature = Some((est.curvature_m1, est.t_capture_ns, est.model_version));
+        self.zero_t_ns = Some(est.t_capture_ns);
         self.refresh_base();
+        if self.dynamics {
+            let cal = &self.loaded.calibration;
+            let c = est.curvature_m1 as f64;
+            for (st, b) in self.states.iter_mut().zip(cal.all_blocks()) {
+                st.rezero(b, c);
+            }
+        }
     }
 
     /// Uses a given curvature (1/m) until an estimate brings another; the baseline stays the
@@ -150,11 +164,55 @@ impl Calibrator {
     }
 
     /// Serves a (re)loaded calibration from the next frame on; the baseline carries over, and
-    /// so do the creep states (block by block, term by term), so a reload starts the new terms
-    /// from the current state without a jump.
+    /// each block's dynamic state continues from what its old terms added at the last frame
+    /// (`dynamics::State::carry_over`), so the force does not jump. New terms on a loaded
+    /// sensor are flagged `DYNAMICS_WARMING` as at a start.
     pub fn set_loaded(&mut self, loaded: Arc<Loaded>) {
-        self.loaded = loaded;
+        let old = std::mem::replace(&mut self.loaded, loaded);
+        let cal = &self.loaded.calibration;
+        for ((st, o), n) in self
+            .states
+            .iter_mut()
+            .zip(old.calibration.all_blocks())
+            .zip(cal.all_blocks())
+        {
+            st.carry_over(o, n);
+        }
+        let had = old
+            .calibration
+            .all_blocks()
+            .any(|b| !b.dynamics.is_static());
+        if !had && self.warm == Warm::Known {
+            self.warm = Warm::Unchecked;
+        }
         self.refresh_base();
+    }
+
+    /// What is known of the dynamic states at the first frame with a baseline (whole-array
+    /// reading `s`): the states start at rest, which is right for a sensor at rest, unless the
+    /// process was restarted (a remanence it cannot know) or the sensor is loaded (creep under
+    /// way). Then they are flagged until the longest creep time constant has passed and every
+    /// play has been swept (`dynamics::State::plays_known`).
+    fn start_warm(&self, s: f64, t_ns: u64) -> Warm {
+        let cal = &self.loaded.calibration;
+        if !self.dynamics || cal.all_blocks().all(|b| b.dynamics.is_static()) {
+            return Warm::Known;
+        }
+        let longest = cal
+            .all_blocks()
+            .map(|b| b.dynamics.longest_tau_s())
+            .fold(0.0, f64::max);
+        let hysteresis = cal.all_blocks().any(|b| b.dynamics.hysteresis.is_some());
+        let (range, _) = cal.array.ranges();
+        let loaded = s > range[0] + UNLOADED_SHARE * (range[1] - range[0]);
+        let restarted = taxel_runtime::process::restarted();
+        if loaded {
+            Warm::Until(t_ns + (longest * 1e9) as u64)
+        } else if restarted && hysteresis {
+            Warm::Until(t_ns)
+        } else {
+            Warm::Known
+        }
     }
 
     pub fn calibration(&self) -> &Calibration {
@@ -196,6 +254,9 @@ impl Calibrator {
             }
         };
         out.curvature_m1 = c as f32;
+        out.zero_age_s = self.zero_t_ns.map_or(f32::NAN, |t| {
+            (frame.t_capture_ns.saturating_sub(t) as f64 * 1e-9) as f32
+        });
         let n = frame.n_nodes();
         if self.baseline.is_none() {
             flags |= force_flags::NO_BASELINE;
@@ -218,30 +279,28 @@ impl Calibrator {
         let dynamics = self.dynamics;
         let s = reading(&cal.array.nodes);
         if self.warm == Warm::Unchecked {
-            // States start at zero: right if the sensor rests now, unknown if it is loaded.
-            self.warm = Warm::Known;
-            let longest = std::iter::once(&cal.array)
-                .chain(&cal.blocks)
-                .filter_map(|b| b.creep.map(|c| c.longest_tau_s()))
-                .fold(0.0, f64::max);
-            let (range, _) = cal.array.ranges();
-            let loaded = s > range[0] + UNLOADED_SHARE * (range[1] - range[0]);
-            if longest > 0.0 && loaded && self.dynamics {
-                self.warm = Warm::Until(frame.t_capture_ns + (longest * 1e9) as u64);
+            self.warm = self.start_warm(s, frame.t_capture_ns);
+        }
+        if self.warm != Warm::Known {
+            let states_known = cal
+                .all_blocks()
+                .zip(&self.states)
+                .all(|(b, st)| st.plays_known(b));
+            match self.warm {
+                Warm::Until(until) if frame.t_capture_ns >= until && states_known => {
+                    self.warm = Warm::Known
+                }
+                _ => flags |= force_flags::DYNAMICS_WARMING,
             }
         }
-        if let Warm::Until(until) = self.warm {
-            if frame.t_capture_ns < until {
-                flags |= force_flags::DYNAMICS_WARMING;
+        let mut force = |k: usize, b: &crate::calibration::Block, s: f64| {
+            if dynamics {
+                self.states[k].step(b, s, c, dt_s)
             } else {
-                self.warm = Warm::Known;
+                b.evaluate(s, c)
             }
-        }
-        let mut instantaneous = |k: usize, b: &crate::calibration::Block, s: f64| match &b.creep {
-            Some(cr) if dynamics => cr.step(&mut self.creep[k], s, dt_s),
-            _ => s,
         };
-        let e = cal.array.evaluate(instantaneous(0, &cal.array, s), c);
+        let e = force(0, &cal.array, s);
         out.total_reading = s as f32;
         out.total_force_n = (offset + e.force_n) as f32;
         if e.out_of_range {
@@ -249,7 +308,7 @@ impl Calibrator {
         }
         for (i, b) in cal.blocks.iter().take(MAX_BLOCKS).enumerate() {
             let s = reading(&b.nodes);
-            let e = b.evaluate(instantaneous(i + 1, b, s), c);
+            let e = force(i + 1, b, s);
             out.block_reading[i] = s as f32;
             out.block_force_n[i] = (offset + e.force_n) as f32;
             if e.out_of_range {
@@ -443,6 +502,30 @@ mod tests {
                 out.flags & force_flags::DYNAMICS_WARMING
             })
             .collect()
+    }
+
+    #[test]
+    fn every_sample_says_how_old_its_zero_is() {
+        let text = "id = \"c\"\nversion = 1\nrows = 1\ncols = 1\nno_load_reading = [100]\n[array]\nname = \"array\"\nmodel = { form = \"poly\", terms = [{ s = 1, c = 0, coef = 0.01 }] }\nrange = { s = [0, 1000], curvature_m1 = [0, 80] }\n";
+        let cal = Calibration::from_toml_str("c.toml", text).expect("valid");
+        let mut c = Calibrator::for_calibration(cal, 60.0);
+        let mut frame = RawFrame::ZERO;
+        (frame.rows, frame.cols, frame.counts[0]) = (1, 1, 150.0);
+        let mut out = ForceSample::ZERO;
+        frame.t_capture_ns = 2_000_000_000;
+        c.apply(&frame, frame.t_capture_ns, &mut out);
+        // Counted from the file's no-load reading: no measured zero, no age.
+        assert!(
+            out.total_force_n.is_finite() && out.zero_age_s.is_nan(),
+            "{out:?}"
+        );
+        let mut est = CurvatureEstimate::ZERO;
+        (est.rows, est.cols, est.baseline[0]) = (1, 1, 101.0);
+        est.t_capture_ns = 2_500_000_000;
+        c.set_curvature(&est);
+        frame.t_capture_ns = 4_000_000_000;
+        c.apply(&frame, frame.t_capture_ns, &mut out);
+        assert!((out.zero_age_s - 1.5).abs() < 1e-6, "{}", out.zero_age_s);
     }
 
     #[test]

@@ -2,7 +2,17 @@
 //! simple simulated hand (first-order grip actuator). It wakes on every ForceSample (WaitSet),
 //! measures the sample's age (now - t_capture_ns), counts deadline misses and dropped frames,
 //! and goes to a safe state (holds the grip command) when samples are invalid, flagged, older
-//! than the deadline (stale: never used as fresh), or stop arriving. Once a second it prints a status line; at exit, a summary.
+//! than the deadline (stale: never used as fresh), or stop arriving. Once a second it prints a
+//! status line; at exit, a summary.
+//!
+//! The age and deadline statistics (percentiles, misses) start with the first sample captured
+//! at or after the moment the loop received its first sample. Samples captured before that are
+//! the start-up backlog: frames that waited in the pipeline while its processes were still
+//! starting (the first frames through a cold calibrator take milliseconds), or the force
+//! stream's history sample handed to a loop that joins a running pipeline. They are counted as
+//! start-up samples instead, and are still judged like any other (a stale one never drives the
+//! hand). Once the first sample has arrived every later capture counts, so a pipeline that is
+//! late all the time, or stalls later (a restarted calibrator), shows its misses.
 
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -109,6 +119,12 @@ struct State {
     last_t: Option<u64>,
     /// The last sample was older than the deadline.
     last_stale: bool,
+    /// When the first sample arrived (CLOCK_MONOTONIC ns): the age and deadline statistics
+    /// count samples captured at or after it.
+    first_arrival_ns: Option<u64>,
+    /// Samples captured before the first sample arrived (start-up backlog, history): not in the
+    /// age and deadline statistics.
+    startup_samples: u64,
 }
 
 impl State {
@@ -119,13 +135,19 @@ impl State {
         self.safe = true;
     }
 
-    fn on_sample(&mut self, f: &ForceSample, target_n: f64, deadline_ns: u64) {
-        let age = now_ns().saturating_sub(f.t_capture_ns);
-        self.total.record_ns(age);
-        self.window.record_ns(age);
+    /// Handles a sample that arrived at `arrived_ns` (CLOCK_MONOTONIC).
+    fn on_sample(&mut self, f: &ForceSample, target_n: f64, deadline_ns: u64, arrived_ns: u64) {
+        let age = arrived_ns.saturating_sub(f.t_capture_ns);
         let stale = age > deadline_ns;
-        if stale {
-            self.misses += 1;
+        let first_arrival = *self.first_arrival_ns.get_or_insert(arrived_ns);
+        if f.t_capture_ns >= first_arrival {
+            self.total.record_ns(age);
+            self.window.record_ns(age);
+            if stale {
+                self.misses += 1;
+            }
+        } else {
+            self.startup_samples += 1;
         }
         self.seq.observe(f.seq);
         self.last_stale = stale;
@@ -237,6 +259,8 @@ fn run(a: Args) -> Result<(), Failure> {
         safe_entries: 0,
         last_t: None,
         last_stale: false,
+        first_arrival_ns: None,
+        startup_samples: 0,
     });
     let last_arrival = std::cell::Cell::new(now_ns());
     let start = Instant::now();
@@ -254,7 +278,8 @@ fn run(a: Args) -> Result<(), Failure> {
         |f| (f.seq, f.t_capture_ns),
         |f, t| {
             last_arrival.set(t);
-            st.borrow_mut().on_sample(f, a.target_n, deadline_ns);
+            st.borrow_mut()
+                .on_sample(f, a.target_n, deadline_ns, now_ns());
             Ok(())
         },
         || {
@@ -283,7 +308,7 @@ fn run(a: Args) -> Result<(), Failure> {
         return Err(Failure::runtime(e));
     }
     println!(
-        "[{}] summary: {} samples in {:.1} s, dropped {}, source restarts {}, age p50 {:.1} us p99 {:.1} us max {:.1} us, deadline misses {} (> {} ms), safe-state entries {}",
+        "[{}] summary: {} samples in {:.1} s, dropped {}, source restarts {}, age p50 {:.1} us p99 {:.1} us max {:.1} us, deadline misses {} (> {} ms), safe-state entries {}, start-up samples {} (captured before the first arrived: not in the age and deadline statistics)",
         a.sensor,
         st.seq.received,
         start.elapsed().as_secs_f64(),
@@ -294,7 +319,8 @@ fn run(a: Args) -> Result<(), Failure> {
         st.total.max_us(),
         st.misses,
         a.deadline_ms,
-        st.safe_entries
+        st.safe_entries,
+        st.startup_samples
     );
     Ok(())
 }
@@ -342,25 +368,33 @@ mod tests {
             safe_entries: 0,
             last_t: None,
             last_stale: false,
+            first_arrival_ns: None,
+            startup_samples: 0,
         }
+    }
+
+    const MS: u64 = 1_000_000;
+
+    fn sample(seq: u64, t_capture_ns: u64, force_n: f32) -> ForceSample {
+        let mut f = ForceSample::ZERO;
+        f.seq = seq;
+        f.t_capture_ns = t_capture_ns;
+        f.total_force_n = force_n;
+        f
     }
 
     #[test]
     fn a_sample_older_than_the_deadline_is_stale_and_never_drives_the_hand() {
         let mut st = state();
-        let deadline_ns = 5_000_000;
-        let mut f = ForceSample::ZERO;
-        f.total_force_n = 1.0;
-        f.t_capture_ns = now_ns();
-        st.on_sample(&f, 4.0, deadline_ns);
+        let deadline_ns = 5 * MS;
+        let t0 = 1_000 * MS;
+        // The first sample arrives 0.1 ms after its capture: fresh.
+        st.on_sample(&sample(0, t0, 1.0), 4.0, deadline_ns, t0 + MS / 10);
         assert!(!st.safe, "a fresh, unflagged sample drives the hand");
         let command = st.hand.command;
         assert!(command > 0.0);
-        // 20 ms old: stale.
-        f.seq = 1;
-        f.total_force_n = 0.0;
-        f.t_capture_ns = now_ns() - 20_000_000;
-        st.on_sample(&f, 4.0, deadline_ns);
+        // Captured 1 ms later, it arrives 20 ms old: stale.
+        st.on_sample(&sample(1, t0 + MS, 0.0), 4.0, deadline_ns, t0 + 21 * MS);
         assert!(st.safe && st.last_stale);
         assert_eq!((st.misses, st.safe_entries), (1, 1));
         assert_eq!(
@@ -369,6 +403,66 @@ mod tests {
         );
         assert!(st.status_line("s0", 1.0).contains("STALE"));
         assert!(st.status_line("s0", 1.0).contains("SAFE"));
+    }
+
+    #[test]
+    fn deadline_statistics_start_with_the_first_sample_captured_after_the_first_arrival() {
+        let mut st = state();
+        let deadline_ns = 5 * MS;
+        let t0 = 1_000 * MS;
+        // A cold pipeline: frames captured every 2 ms from t0; the first force sample arrives
+        // 6.2 ms after its capture, the two captured meanwhile right behind it.
+        st.on_sample(&sample(0, t0, 1.0), 4.0, deadline_ns, t0 + 6_200_000);
+        assert!(
+            st.safe && st.last_stale,
+            "a stale start-up sample is still stale"
+        );
+        st.on_sample(
+            &sample(1, t0 + 2 * MS, 1.0),
+            4.0,
+            deadline_ns,
+            t0 + 6_300_000,
+        );
+        st.on_sample(
+            &sample(2, t0 + 4 * MS, 1.0),
+            4.0,
+            deadline_ns,
+            t0 + 6_400_000,
+        );
+        assert_eq!((st.misses, st.startup_samples), (0, 3));
+        assert!(
+            st.total.is_empty() && st.window.is_empty(),
+            "no start-up age counted"
+        );
+        // Captured at the first arrival or later: counted, in time or not.
+        st.on_sample(
+            &sample(3, t0 + 6_200_000, 1.0),
+            4.0,
+            deadline_ns,
+            t0 + 6_500_000,
+        );
+        assert_eq!((st.misses, st.total.len()), (0, 1));
+        assert!(!st.safe);
+        st.on_sample(&sample(4, t0 + 8 * MS, 1.0), 4.0, deadline_ns, t0 + 14 * MS);
+        assert_eq!((st.misses, st.total.len(), st.startup_samples), (1, 2, 3));
+        assert!(
+            st.safe,
+            "a stale sample after start-up never drives the hand"
+        );
+    }
+
+    #[test]
+    fn a_history_sample_of_a_running_stream_is_a_start_up_sample() {
+        let mut st = state();
+        let t0 = 1_000 * MS;
+        // A loop joining a running pipeline gets the stream's last sample, 300 ms old.
+        st.on_sample(&sample(500, t0, 1.0), 4.0, 5 * MS, t0 + 300 * MS);
+        assert_eq!((st.misses, st.startup_samples, st.total.len()), (0, 1, 0));
+        assert!(st.safe, "too old to drive the hand");
+        // The next live sample counts.
+        st.on_sample(&sample(501, t0 + 301 * MS, 1.0), 4.0, 5 * MS, t0 + 302 * MS);
+        assert_eq!((st.misses, st.startup_samples, st.total.len()), (0, 1, 1));
+        assert!(!st.safe);
     }
 
     #[test]

@@ -21,7 +21,10 @@
 //! gives the first baseline (the stream must start unloaded, as the paper's protocol does). A
 //! steady level away from the baseline by less than `max_rebaseline_sigmas` on every node that
 //! stays for `rebaseline_s` becomes the new baseline: the sensor was remounted (a held press
-//! moves the loaded nodes much further, and a hand's tremor keeps it from being steady). When
+//! moves the loaded nodes much further, and a hand's tremor keeps it from being steady); when
+//! the direction of a load is known and the level lies toward load, it must stay for
+//! `rebaseline_load_s` (30 s), longer than a light press is held still (15 s holds in the
+//! dynamic protocol were taken for remounts at 5 s). When
 //! the direction of the readings with force is known, a steady level on the unloaded side of
 //! the baseline is no load whatever its distance (a load only raises conductance): beyond the
 //! contact limit it replaces the baseline at once as a new level (flagged like a remount, so the
@@ -55,6 +58,10 @@ pub struct DetectorConfig {
     pub min_interval_s: f64,
     /// How long a new steady level must last to replace the baseline (s).
     pub rebaseline_s: f64,
+    /// The same for a level on the loaded side of the baseline when the direction of a load is
+    /// known (`rises`): a light press held still looks like a remount there, so it must last
+    /// longer than a hand or a protocol holds a level (s).
+    pub rebaseline_load_s: f64,
     /// Largest per-node move from the baseline that can still be a remount (reference noises).
     pub max_rebaseline_sigmas: f64,
     /// Judge the readings in the log domain (a resistance readout).
@@ -80,6 +87,7 @@ impl Default for DetectorConfig {
             contact_sigmas: 8.0,
             min_interval_s: 1.0,
             rebaseline_s: 5.0,
+            rebaseline_load_s: 30.0,
             max_rebaseline_sigmas: 60.0,
             log_domain: false,
             rises: None,
@@ -110,6 +118,7 @@ impl DetectorConfig {
         for (v, name) in [
             (self.min_interval_s, "min_interval_s"),
             (self.rebaseline_s, "rebaseline_s"),
+            (self.rebaseline_load_s, "rebaseline_load_s"),
             (self.max_node_sd.unwrap_or(0.0), "max_node_sd"),
             (self.contact_threshold.unwrap_or(0.0), "contact_threshold"),
         ] {
@@ -403,7 +412,13 @@ impl BaselineDetector {
                 return None;
             }
             let since = self.candidate_since.unwrap_or(t_ns);
-            if (t_ns.saturating_sub(since) as f64) < self.cfg.rebaseline_s * 1e9 {
+            // Known direction: this level lies toward load (else it would be `unloading`).
+            let wait = if self.cfg.rises.is_some() {
+                self.cfg.rebaseline_load_s
+            } else {
+                self.cfg.rebaseline_s
+            };
+            if (t_ns.saturating_sub(since) as f64) < wait * 1e9 {
                 return None;
             }
             // Accepted as a new baseline: publish now regardless of the interval.

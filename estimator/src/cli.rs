@@ -141,6 +141,10 @@ pub struct RunArgs {
     /// a new baseline (the sensor was remounted) (s).
     #[arg(long, default_value_t = DetectorConfig::default().rebaseline_s)]
     pub rebaseline_s: f64,
+    /// The same for a level on the loaded side of the baseline, when the model's readout says
+    /// which side that is (s): longer than a light press is held still.
+    #[arg(long, default_value_t = DetectorConfig::default().rebaseline_load_s)]
+    pub rebaseline_load_s: f64,
     /// Curvature model file (from `train`); without it the configured --curvature-m1 is used.
     /// The file is watched: a valid replacement is used from the next no-load window on.
     #[arg(long)]
@@ -174,6 +178,7 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
         contact_threshold: a.contact_threshold,
         min_interval_s: a.min_interval_s,
         rebaseline_s: a.rebaseline_s,
+        rebaseline_load_s: a.rebaseline_load_s,
         ..DetectorConfig::default()
     };
     detector

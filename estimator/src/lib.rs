@@ -1,7 +1,12 @@
 //! taxel-estimator owns the mounting-curvature estimate: it detects no-load windows in the raw
-//! stream (`baseline`), measures the per-node no-load baseline, and publishes
-//! `CurvatureEstimate`s carrying that baseline and the curvature (`run`). In this first version
-//! the curvature is the configured one, flagged as configured; the learned model replaces it.
+//! stream with thresholds in units of the stream's own noise (`baseline`), measures the
+//! per-node no-load baseline, predicts the mounting curvature from it with a learned model
+//! (`features`, `model`: the paper's residual MLP or ridge regression; or uses a configured
+//! curvature) and holds it until a remount (`estimate`, the per-frame code that offline
+//! evaluation shares), and publishes `CurvatureEstimate`s carrying the baseline and the
+//! curvature (`run`), with the model file hot-reloaded (`reload`). Offline it builds training
+//! sets from recordings (`dataset`) or the simulator (`synth`), trains and evaluates models
+//! with figures (`cli`, `plot`).
 
 pub mod baseline;
 pub mod cli;

@@ -182,85 +182,7 @@ impl Recording {
             .split(',')
             .map(|s| s.trim().to_string())
             .collect();
-        let mut cols = Vec::with_capacity(header.len());
-        let mut seen_nodes: Vec<Option<usize>> = Vec::new();
-        let mut have = [false; 5];
-        for (ci, name) in header.iter().enumerate() {
-            let col = match name.as_str() {
-                "t_s" => Col::T,
-                "force_n" => Col::Force,
-                "curvature_m1" => Col::Curv,
-                "temp_c" => Col::Temp,
-                "trial" => Col::Trial,
-                s if s.len() > 1
-                    && s.starts_with('n')
-                    && s[1..].bytes().all(|b| b.is_ascii_digit()) =>
-                {
-                    let k: usize = s[1..].parse().map_err(|_| CsvError::Header {
-                        path: p(),
-                        reason: format!("column {}: node index {s:?} is too large", ci + 1),
-                    })?;
-                    if k >= 1024 {
-                        return Err(CsvError::Header {
-                            path: p(),
-                            reason: format!("column {}: {s} exceeds the 1024-node limit", ci + 1),
-                        });
-                    }
-                    if seen_nodes.len() <= k {
-                        seen_nodes.resize(k + 1, None);
-                    }
-                    if seen_nodes[k].is_some() {
-                        return Err(CsvError::Header {
-                            path: p(),
-                            reason: format!("column {}: {s} appears twice", ci + 1),
-                        });
-                    }
-                    seen_nodes[k] = Some(ci);
-                    Col::Node(k)
-                }
-                _ => Col::Ignore,
-            };
-            let slot = match col {
-                Col::T => Some(0),
-                Col::Force => Some(1),
-                Col::Curv => Some(2),
-                Col::Temp => Some(3),
-                Col::Trial => Some(4),
-                _ => None,
-            };
-            if let Some(s) = slot {
-                if have[s] {
-                    return Err(CsvError::Header {
-                        path: p(),
-                        reason: format!("column {}: {name} appears twice", ci + 1),
-                    });
-                }
-                have[s] = true;
-            }
-            cols.push(col);
-        }
-        if !have[0] {
-            return Err(CsvError::Header {
-                path: p(),
-                reason: format!("no t_s column (header is {:?})", header.join(",")),
-            });
-        }
-        if seen_nodes.is_empty() {
-            return Err(CsvError::Header {
-                path: p(),
-                reason: "no node columns (expected n0, n1, ...)".into(),
-            });
-        }
-        if let Some(k) = seen_nodes.iter().position(|s| s.is_none()) {
-            return Err(CsvError::Header {
-                path: p(),
-                reason: format!(
-                    "node columns must be n0..n{} without holes: n{k} is missing",
-                    seen_nodes.len() - 1
-                ),
-            });
-        }
-        let n_nodes = seen_nodes.len();
+        let (cols, have, n_nodes) = header_columns(path, &header)?;
         let mut rec = Recording {
             path: p(),
             n_nodes,
@@ -286,60 +208,14 @@ impl Recording {
             if text.is_empty() {
                 continue;
             }
-            let row_err = |reason: String| CsvError::Row {
-                path: p(),
-                line: line_no,
-                reason,
-            };
-            let mut fields = 0usize;
-            let (mut t, mut f, mut c, mut temp, mut trial) = (0.0, 0.0, 0.0, 0.0, 0i64);
-            for (ci, field) in text.split(',').enumerate() {
-                fields += 1;
-                let Some(&col) = cols.get(ci) else {
-                    continue;
-                };
-                let field = field.trim();
-                if matches!(col, Col::Ignore) {
-                    continue;
-                }
-                if let Col::Trial = col {
-                    trial = parse_int(field).ok_or_else(|| {
-                        row_err(format!(
-                            "column {} (trial): {field:?} is not an integer",
-                            ci + 1
-                        ))
-                    })?;
-                    continue;
-                }
-                let v: f64 = field.parse().map_err(|_| {
-                    row_err(format!(
-                        "column {} ({}): {field:?} is not a number",
-                        ci + 1,
-                        header[ci]
-                    ))
+            let (t, f, c, temp, trial) =
+                parse_row(text, &cols, &header, &mut row_nodes).map_err(|reason| {
+                    CsvError::Row {
+                        path: p(),
+                        line: line_no,
+                        reason,
+                    }
                 })?;
-                if !v.is_finite() {
-                    return Err(row_err(format!(
-                        "column {} ({}): {field:?} is not finite",
-                        ci + 1,
-                        header[ci]
-                    )));
-                }
-                match col {
-                    Col::T => t = v,
-                    Col::Node(k) => row_nodes[k] = v,
-                    Col::Force => f = v,
-                    Col::Curv => c = v,
-                    Col::Temp => temp = v,
-                    Col::Trial | Col::Ignore => {}
-                }
-            }
-            if fields != cols.len() {
-                return Err(row_err(format!(
-                    "{fields} fields, but the header has {}",
-                    cols.len()
-                )));
-            }
             rec.t_s.push(t);
             rec.nodes.extend_from_slice(&row_nodes);
             if let Some(v) = rec.force_n.as_mut() {
@@ -408,6 +284,150 @@ fn read_line<R: BufRead>(input: &mut R, line: &mut String) -> std::io::Result<us
         ));
     }
     Ok(n)
+}
+
+/// The header's columns: each column's meaning, which of t_s, force_n, curvature_m1, temp_c
+/// and trial are present, and the node count (n0..n{N-1} without holes).
+fn header_columns(
+    path: &Path,
+    header: &[String],
+) -> Result<(Vec<Col>, [bool; 5], usize), CsvError> {
+    let p = || path.to_path_buf();
+    let mut cols = Vec::with_capacity(header.len());
+    let mut seen_nodes: Vec<Option<usize>> = Vec::new();
+    let mut have = [false; 5];
+    for (ci, name) in header.iter().enumerate() {
+        let col = match name.as_str() {
+            "t_s" => Col::T,
+            "force_n" => Col::Force,
+            "curvature_m1" => Col::Curv,
+            "temp_c" => Col::Temp,
+            "trial" => Col::Trial,
+            s if s.len() > 1
+                && s.starts_with('n')
+                && s[1..].bytes().all(|b| b.is_ascii_digit()) =>
+            {
+                let k: usize = s[1..].parse().map_err(|_| CsvError::Header {
+                    path: p(),
+                    reason: format!("column {}: node index {s:?} is too large", ci + 1),
+                })?;
+                if k >= 1024 {
+                    return Err(CsvError::Header {
+                        path: p(),
+                        reason: format!("column {}: {s} exceeds the 1024-node limit", ci + 1),
+                    });
+                }
+                if seen_nodes.len() <= k {
+                    seen_nodes.resize(k + 1, None);
+                }
+                if seen_nodes[k].is_some() {
+                    return Err(CsvError::Header {
+                        path: p(),
+                        reason: format!("column {}: {s} appears twice", ci + 1),
+                    });
+                }
+                seen_nodes[k] = Some(ci);
+                Col::Node(k)
+            }
+            _ => Col::Ignore,
+        };
+        let slot = match col {
+            Col::T => Some(0),
+            Col::Force => Some(1),
+            Col::Curv => Some(2),
+            Col::Temp => Some(3),
+            Col::Trial => Some(4),
+            _ => None,
+        };
+        if let Some(s) = slot {
+            if have[s] {
+                return Err(CsvError::Header {
+                    path: p(),
+                    reason: format!("column {}: {name} appears twice", ci + 1),
+                });
+            }
+            have[s] = true;
+        }
+        cols.push(col);
+    }
+    if !have[0] {
+        return Err(CsvError::Header {
+            path: p(),
+            reason: format!("no t_s column (header is {:?})", header.join(",")),
+        });
+    }
+    if seen_nodes.is_empty() {
+        return Err(CsvError::Header {
+            path: p(),
+            reason: "no node columns (expected n0, n1, ...)".into(),
+        });
+    }
+    if let Some(k) = seen_nodes.iter().position(|s| s.is_none()) {
+        return Err(CsvError::Header {
+            path: p(),
+            reason: format!(
+                "node columns must be n0..n{} without holes: n{k} is missing",
+                seen_nodes.len() - 1
+            ),
+        });
+    }
+    Ok((cols, have, seen_nodes.len()))
+}
+
+/// One data row: the node readings into `nodes`, and (t_s, force_n, curvature_m1, temp_c,
+/// trial), 0 where the column is absent; the error is the reason, without file and line.
+fn parse_row(
+    text: &str,
+    cols: &[Col],
+    header: &[String],
+    nodes: &mut [f64],
+) -> Result<(f64, f64, f64, f64, i64), String> {
+    let mut fields = 0usize;
+    let (mut t, mut f, mut c, mut temp, mut trial) = (0.0, 0.0, 0.0, 0.0, 0i64);
+    for (ci, field) in text.split(',').enumerate() {
+        fields += 1;
+        let Some(&col) = cols.get(ci) else {
+            continue;
+        };
+        let field = field.trim();
+        if matches!(col, Col::Ignore) {
+            continue;
+        }
+        if let Col::Trial = col {
+            trial = parse_int(field)
+                .ok_or_else(|| format!("column {} (trial): {field:?} is not an integer", ci + 1))?;
+            continue;
+        }
+        let v: f64 = field.parse().map_err(|_| {
+            format!(
+                "column {} ({}): {field:?} is not a number",
+                ci + 1,
+                header[ci]
+            )
+        })?;
+        if !v.is_finite() {
+            return Err(format!(
+                "column {} ({}): {field:?} is not finite",
+                ci + 1,
+                header[ci]
+            ));
+        }
+        match col {
+            Col::T => t = v,
+            Col::Node(k) => nodes[k] = v,
+            Col::Force => f = v,
+            Col::Curv => c = v,
+            Col::Temp => temp = v,
+            Col::Trial | Col::Ignore => {}
+        }
+    }
+    if fields != cols.len() {
+        return Err(format!(
+            "{fields} fields, but the header has {}",
+            cols.len()
+        ));
+    }
+    Ok((t, f, c, temp, trial))
 }
 
 fn parse_int(s: &str) -> Option<i64> {

@@ -3,6 +3,13 @@
 //! so a payload is defined exactly once (types defined per binary are refused by iceoryx2 as
 //! incompatible). Every payload is `#[repr(C)]`, `Copy`, fixed size, carries an explicit
 //! versioned type name, and has its size asserted next to it. Units are in the field names.
+//! Each payload's fields are listed once more, in `fields`: the table every file format
+//! (record file, MCAP JSON, CSV export) is derived from, checked by the compiler against the
+//! struct.
+
+pub mod fields;
+
+pub use fields::{Field, Message, Visitor};
 
 use iceoryx2::prelude::ZeroCopySend;
 
@@ -90,7 +97,7 @@ pub mod raw_flags {
 
 /// One scan of the array, stamped once at capture.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("taxel.RawFrame.v1")]
 pub struct RawFrame {
     /// Frame sequence number, consecutive per sensor; a jump means frames were lost.
@@ -154,7 +161,7 @@ pub mod curvature_flags {
 
 /// The mounting curvature and the no-load baseline it was derived from.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("taxel.CurvatureEstimate.v1")]
 pub struct CurvatureEstimate {
     /// `seq` of the last frame of the no-load window.
@@ -227,14 +234,15 @@ pub mod force_flags {
     /// calibration file's `no_load_reading` (set together with `NO_BASELINE`).
     pub const BASELINE_FROM_CALIBRATION: u32 = 1 << 6;
     /// The calibration has dynamic terms whose state is not known yet: the calibrator started
-    /// (or restarted) with the sensor loaded, less than the largest time constant ago.
+    /// with the sensor loaded, or restarted with hysteresis terms, and the largest creep time
+    /// constant has not passed or the force has not swept every play yet.
     pub const DYNAMICS_WARMING: u32 = 1 << 7;
 }
 
 /// Calibrated forces for one frame.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, ZeroCopySend)]
-#[type_name("taxel.ForceSample.v1")]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("taxel.ForceSample.v2")]
 pub struct ForceSample {
     /// `seq` of the raw frame, copied through.
     pub seq: u64,
@@ -263,9 +271,15 @@ pub struct ForceSample {
     pub block_force_n: [f32; MAX_BLOCKS],
     /// Reading S per block (baseline-subtracted sum of counts).
     pub block_reading: [f32; MAX_BLOCKS],
+    /// Age of the no-load zero in use (s): this frame's capture time minus the end of the
+    /// no-load window the estimator published it from (every such window re-zeroes). NaN while
+    /// the zero is the calibration file's `no_load_reading` or there is none.
+    pub zero_age_s: f32,
+    /// Explicit padding (always 0) so the layout has no hidden bytes.
+    pub reserved: u32,
 }
 const _: () =
-    assert!(core::mem::size_of::<ForceSample>() == 8 * 3 + 32 + 4 * 8 + 4 * 2 * MAX_BLOCKS);
+    assert!(core::mem::size_of::<ForceSample>() == 8 * 3 + 32 + 4 * 8 + 4 * 2 * MAX_BLOCKS + 4 + 4);
 
 impl ForceSample {
     pub const ZERO: ForceSample = ForceSample {
@@ -283,6 +297,8 @@ impl ForceSample {
         n_blocks: 0,
         block_force_n: [0.0; MAX_BLOCKS],
         block_reading: [0.0; MAX_BLOCKS],
+        zero_age_s: f32::NAN,
+        reserved: 0,
     };
     pub fn blocks(&self) -> &[f32] {
         &self.block_force_n[..(self.n_blocks as usize).min(MAX_BLOCKS)]
@@ -294,7 +310,7 @@ impl ForceSample {
 /// runs carry the reference columns of the recording CSV schema. NaN marks a value the source
 /// does not know.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("taxel.Reference.v1")]
 pub struct Reference {
     pub seq: u64,
@@ -312,6 +328,19 @@ pub struct Reference {
     pub trial: i32,
 }
 const _: () = assert!(core::mem::size_of::<Reference>() == 8 * 2 + 32 + 8 + 4 * 4);
+
+impl Reference {
+    pub const ZERO: Reference = Reference {
+        seq: 0,
+        t_capture_ns: 0,
+        sensor: [0; SENSOR_ID_LEN],
+        t_source_s: 0.0,
+        force_n: 0.0,
+        curvature_m1: 0.0,
+        temp_c: 0.0,
+        trial: 0,
+    };
+}
 
 /// The streams of one sensor. Each is a publish-subscribe service paired with an event service
 /// of the same name that is notified after every send.
@@ -404,7 +433,7 @@ mod tests {
         // SAFETY: type_name only returns the string given in the derive attribute.
         unsafe {
             assert_eq!(RawFrame::type_name(), "taxel.RawFrame.v1");
-            assert_eq!(ForceSample::type_name(), "taxel.ForceSample.v1");
+            assert_eq!(ForceSample::type_name(), "taxel.ForceSample.v2");
             assert_eq!(CurvatureEstimate::type_name(), "taxel.CurvatureEstimate.v1");
             assert_eq!(Reference::type_name(), "taxel.Reference.v1");
         }

@@ -335,18 +335,12 @@ mod tests {
         let p = dir.path().join("r.mcap");
         let mut w = McapRecordWriter::create(&p).expect("create");
         for (i, sensor) in [(0u64, "a"), (0, "b"), (1, "a"), (2, "a")] {
-            w.write(&Record::Raw {
-                sensor: sensor.into(),
-                seq: i,
-                t_capture_ns: 1_000_000_000 + i * 10_000_000,
-                rows: 1,
-                cols: 2,
-                flags: 0,
-                source: 0,
-                full_scale: 1023.0,
-                counts: vec![i as f32, 100.0 + i as f32],
-            })
-            .expect("write");
+            let mut f = taxel_msgs::RawFrame::ZERO;
+            f.sensor = taxel_msgs::sensor_id_bytes(sensor).expect("id");
+            (f.seq, f.t_capture_ns) = (i, 1_000_000_000 + i * 10_000_000);
+            (f.rows, f.cols, f.full_scale) = (1, 2, 1023.0);
+            f.counts[..2].copy_from_slice(&[i as f32, 100.0 + i as f32]);
+            w.write(&Record::from(f)).expect("write");
         }
         w.finish().expect("finish");
         let e = ReplaySource::open_mcap(&p, None, None, None, 1.0, 0.0, false)

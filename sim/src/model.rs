@@ -503,6 +503,15 @@ impl SensorModel {
 
     /// Checks every parameter's range; the message names the parameter.
     pub fn validate(&self) -> Result<(), SimError> {
+        self.validate_readout_and_material()?;
+        self.validate_zoo()?;
+        self.validate_nodes()?;
+        self.validate_spread_and_curvature()?;
+        self.validate_effects()
+    }
+
+    /// The array, the readout and the material.
+    fn validate_readout_and_material(&self) -> Result<(), SimError> {
         check(
             (1..=32).contains(&self.rows) && (1..=32).contains(&self.cols),
             "rows and cols must be 1..=32",
@@ -557,7 +566,11 @@ impl SensorModel {
             finite_nonneg(r.resolution_ohm),
             "readout.resolution_ohm must be >= 0",
         )?;
-        self.validate_zoo()?;
+        Ok(())
+    }
+
+    /// Per-node factors, when given: one per node, finite and non-negative.
+    fn validate_nodes(&self) -> Result<(), SimError> {
         if let Some(nf) = &self.nodes {
             let n = self.rows * self.cols;
             check(
@@ -577,6 +590,11 @@ impl SensorModel {
                 )?;
             }
         }
+        Ok(())
+    }
+
+    /// The build and node spread, and the curvature response.
+    fn validate_spread_and_curvature(&self) -> Result<(), SimError> {
         let s = &self.spread;
         for (v, name) in [
             (s.node_gain_log_sd, "spread.node_gain_log_sd"),
@@ -611,6 +629,11 @@ impl SensorModel {
             finite_nonneg(c.mount_baseline_log_sd) && c.mount_baseline_log_sd <= 1.0,
             "curvature.mount_baseline_log_sd must be in 0..=1",
         )?;
+        Ok(())
+    }
+
+    /// The effect layers: creep, hysteresis, thermal drift, crosstalk, scan skew.
+    fn validate_effects(&self) -> Result<(), SimError> {
         if let Some(cr) = &self.creep {
             check(
                 cr.amplitudes.len() == cr.tau_s.len() && !cr.tau_s.is_empty(),

@@ -163,42 +163,38 @@ fn check(name: &str) -> [(f64, f64); 2] {
 
 #[test]
 fn zoo_log_stays_in_range_and_loses_a_fifth_to_a_half_when_bent() {
-    check("zoo-log");
+    check_and_print("zoo-log");
 }
 
 #[test]
 fn zoo_sat_stays_in_range_and_loses_a_fifth_to_a_half_when_bent() {
-    check("zoo-sat");
+    check_and_print("zoo-sat");
 }
 
 #[test]
 fn zoo_pow_stays_in_range_and_loses_a_fifth_to_a_half_when_bent() {
-    check("zoo-pow");
+    check_and_print("zoo-pow");
 }
 
-/// Prints what the zoo presets read (run with `--ignored --nocapture`).
-#[test]
-#[ignore]
-fn print_zoo_readings() {
-    for name in ["zoo-log", "zoo-sat", "zoo-pow"] {
-        let [(b0, r0), (b80, r80)] = check(name);
+/// Checks a preset and prints what it reads (seen with `--nocapture`).
+fn check_and_print(name: &str) {
+    let [(b0, r0), (b80, r80)] = check(name);
+    println!(
+        "{name} (d): 10 N block {b0:.1} -> {b80:.1}, response {r0:.1} -> {r80:.1}, loss {:.1} %",
+        100.0 * (1.0 - r80 / r0)
+    );
+    let m = presets::preset(name).expect("known");
+    for c in [0.0, 80.0, 100.0] {
+        let r = mount(&m, c, 0, false, 1);
+        let nl: Vec<String> = r.no_load.iter().map(|v| format!("{v:.0}")).collect();
+        let resp: Vec<String> = r.response().iter().map(|v| format!("{v:.1}")).collect();
+        let hi = r.at_20n.iter().fold(f64::MIN, |a, v| a.max(*v));
+        let lo = r.at_20n.iter().fold(f64::MAX, |a, v| a.min(*v));
         println!(
-            "{name} (d): 10 N block {b0:.1} -> {b80:.1}, response {r0:.1} -> {r80:.1}, loss {:.1} %",
-            100.0 * (1.0 - r80 / r0)
-        );
-        let m = presets::preset(name).expect("known");
-        for c in [0.0, 80.0, 100.0] {
-            let r = mount(&m, c, 0, false, 1);
-            let nl: Vec<String> = r.no_load.iter().map(|v| format!("{v:.0}")).collect();
-            let resp: Vec<String> = r.response().iter().map(|v| format!("{v:.1}")).collect();
-            let hi = r.at_20n.iter().fold(f64::MIN, |a, v| a.max(*v));
-            let lo = r.at_20n.iter().fold(f64::MAX, |a, v| a.min(*v));
-            println!(
                 "{name} C={c}: no-load [{}], 10 N block {:.1}, responses [{}], 20 N nodes {lo:.0}..{hi:.0}",
                 nl.join(" "),
                 r.block[3].0,
                 resp.join(" ")
             );
-        }
     }
 }

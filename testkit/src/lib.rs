@@ -1,7 +1,13 @@
 //! taxel-testkit owns what the integration tests of several crates share: a child process
 //! (a taxel role, a bridge) whose stdout and stderr lines are collected as they arrive, waited
-//! on for a line or for its exit with a deadline, stopped with SIGINT as Ctrl-C would, and
-//! killed when the test ends early. Test support only; nothing here ships.
+//! on for a line (or its n-th occurrence) or for its exit with a deadline, stopped with SIGINT
+//! as Ctrl-C would, and killed when the test ends early; and the [`Pipeline`] fixture that
+//! every multi-process test starts its processes with (unique prefix, temporary directory,
+//! each role's start-up, teardown). Test support only; nothing here ships.
+
+mod pipeline;
+
+pub use pipeline::{replace, shm_files, unique_prefix, Pipeline, Role, LIMIT};
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, ExitStatus, Stdio};
@@ -91,6 +97,45 @@ impl Proc {
         }
     }
 
+    /// How many lines printed so far contain `needle`.
+    pub fn count(&mut self, needle: &str) -> usize {
+        self.pump();
+        self.seen.iter().filter(|l| l.contains(needle)).count()
+    }
+
+    /// Waits until `needle` has been printed at least `n` times; fails if the process exits
+    /// first or `limit` passes.
+    pub fn wait_count(&mut self, needle: &str, n: usize, limit: Duration) {
+        let t0 = Instant::now();
+        while self.count(needle) < n {
+            if let Ok(Some(st)) = self.child.try_wait() {
+                self.pump();
+                panic!(
+                    "{} exited ({st}) before printing {needle:?} {n} times:\n{}",
+                    self.name,
+                    self.seen.join("\n")
+                );
+            }
+            assert!(
+                t0.elapsed() < limit,
+                "{} did not print {needle:?} {n} times within {limit:?}:\n{}",
+                self.name,
+                self.seen.join("\n")
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// The last line printed so far that contains `needle` (empty when there is none).
+    pub fn last_line(&mut self, needle: &str) -> String {
+        self.pump();
+        self.seen
+            .iter()
+            .rfind(|l| l.contains(needle))
+            .cloned()
+            .unwrap_or_default()
+    }
+
     /// Sends SIGINT (what Ctrl-C sends).
     pub fn sigint(&self) {
         // SAFETY: kill(2) on our own unreaped child.
@@ -137,8 +182,19 @@ impl Proc {
 }
 
 impl Drop for Proc {
+    /// A process still running (a failed test) gets SIGINT first, so a supervisor (`taxel up`,
+    /// `taxel demo`) stops its own children instead of leaving them running as orphans; after
+    /// 3 s it is killed.
     fn drop(&mut self) {
         if let Ok(None) = self.child.try_wait() {
+            self.sigint();
+            let t0 = Instant::now();
+            while t0.elapsed() < Duration::from_secs(3) {
+                if let Ok(Some(_)) = self.child.try_wait() {
+                    return;
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
             let _ = self.child.kill();
             let _ = self.child.wait();
         }

@@ -5,8 +5,10 @@
 //! fixtures whose reading stops rising with force left out, the declared range (`range`), a
 //! refusal when the fit cannot be right, and the file's text (`render`).
 
-mod creep;
+mod dynamics;
+pub mod from_sim;
 mod monotone;
+mod nnls;
 mod observe;
 mod physics;
 mod poly;
@@ -18,7 +20,9 @@ use taxel_formats::readout::{candidates, direction, Direction, ValueShape};
 use taxel_formats::{Readout, ReadoutKind, Recording};
 
 use crate::calibration::{validate_model, BlockSpec, Calibration, CalibrationFile, ModelSpec};
-pub use creep::{add_creep, CreepFit, TAU_GRID_S};
+pub use dynamics::{
+    add_dynamics, Candidate, CreepForm, DynamicsFit, Series, PLAY_GRID, TAU_GRID_S,
+};
 pub use monotone::{check_fixture, fit_monotone, fixtures, NonMonotone};
 pub use observe::{observations, trials, Baselines, Observation, TrialBase};
 pub use physics::fit_physics;
@@ -369,6 +373,7 @@ fn fit_block(
             model: spec,
             range,
             creep: None,
+            hysteresis: None,
         },
         form,
     ))
@@ -377,8 +382,8 @@ fn fit_block(
 /// The comment at the top of a fitted file.
 pub const FIT_COMMENT: &str = "Fitted by `taxel calibrator fit`. S = block sum of signal(raw) - signal(no-load baseline),\nwhere signal() follows the readout (the raw counts for the paper's amplifier);\nC = curvature in 1/m; F in N. Edit freely: the calibrator validates and hot-reloads it.";
 
-/// Adds creep terms fitted on characterisation recordings to a fitted file's text; returns
-/// the new text and calibration (report lines appended).
+/// Adds dynamic terms (creep, hysteresis) fitted on characterisation recordings `recs` to a
+/// fitted file's text; returns the new text and calibration (report lines appended).
 pub fn with_dynamics(
     text: &str,
     cal: &Calibration,
@@ -386,7 +391,66 @@ pub fn with_dynamics(
     report: &mut Vec<String>,
 ) -> anyhow::Result<(String, Calibration)> {
     let mut file: CalibrationFile = toml::from_str(text)?;
-    add_creep(&mut file, cal, recs, report)?;
+    add_dynamics(&mut file, cal, recs, report)?;
+    let text = to_toml(&file, FIT_COMMENT);
+    let cal = Calibration::from_toml_str("fitted calibration", &text)?;
+    Ok((text, cal))
+}
+
+/// Sets every block's dynamic terms from a simulator model (`--dynamics-from SIM.toml`, e.g.
+/// what `taxel-simcheck diagnose` fitted; `from_sim`); returns the file's text and the
+/// validated calibration. One report line says what was taken and what was left out.
+pub fn with_sim_dynamics(
+    text: &str,
+    cal: &Calibration,
+    model: &taxel_sim::SensorModel,
+    report: &mut Vec<String>,
+) -> anyhow::Result<(String, Calibration)> {
+    let mut file: CalibrationFile = toml::from_str(text)?;
+    let creep = model.creep.as_ref().map(from_sim::creep).transpose()?;
+    // The force a block covers at the largest curvature-free reading of its range.
+    let f_max = cal
+        .array
+        .evaluate(
+            cal.array.s_max(cal.default_curvature_m1),
+            cal.default_curvature_m1,
+        )
+        .force_n;
+    let hysteresis = model
+        .hysteresis
+        .as_ref()
+        .map(|h| from_sim::hysteresis(h, f_max))
+        .transpose()?;
+    anyhow::ensure!(
+        creep.is_some() || hysteresis.is_some(),
+        "the model has neither creep nor hysteresis: no dynamic term to take"
+    );
+    for b in std::iter::once(&mut file.array).chain(file.blocks.iter_mut()) {
+        b.creep = creep.clone();
+        b.hysteresis = hysteresis.clone();
+    }
+    let left = from_sim::left_out(model);
+    report.push(format!(
+        "dynamic terms from the simulator model: {}{}",
+        [
+            creep
+                .as_ref()
+                .map(|c| format!("force creep tau {:?} s share {:?}", c.tau_s, c.share)),
+            hysteresis.as_ref().map(|h| format!(
+                "hysteresis plays {:?} N weight {:?}",
+                h.threshold_n, h.weight
+            )),
+        ]
+        .into_iter()
+        .flatten()
+        .collect::<Vec<_>>()
+        .join("; "),
+        if left.is_empty() {
+            String::new()
+        } else {
+            format!("; left out: {}", left.join(", "))
+        }
+    ));
     let text = to_toml(&file, FIT_COMMENT);
     let cal = Calibration::from_toml_str("fitted calibration", &text)?;
     Ok((text, cal))

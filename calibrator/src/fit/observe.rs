@@ -15,6 +15,9 @@ use taxel_formats::{Readout, Recording};
 
 use super::FitError;
 
+/// Fewest frames of a first unloaded stretch (`Baselines::use_first_unloaded`).
+pub const FIRST_STRETCH_MIN: usize = 5;
+
 /// One observation for a fit.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Observation {
@@ -131,6 +134,53 @@ impl Baselines {
             trials,
             index,
         })
+    }
+
+    /// Takes each trial's baseline from its first unloaded stretch (the frames before its
+    /// first load, at least [`FIRST_STRETCH_MIN`]) where it has one: the sensor's state before
+    /// any press of the trial, which is what dynamic terms count from (later unloaded frames
+    /// hold remanence and creep still recovering). Other trials keep their baseline.
+    pub fn use_first_unloaded(&mut self, recs: &[Recording]) {
+        for t in &mut self.trials {
+            let rec = &recs[t.file];
+            let Some(force) = rec.force_n.as_ref() else {
+                continue;
+            };
+            let limit = rec.unloaded_limit_n().unwrap_or(0.02);
+            let ids = &self.trial_of[t.file];
+            let rows: Vec<usize> = (0..rec.len())
+                .filter(|&i| ids[i] == t.trial)
+                .take_while(|&i| force[i] <= limit)
+                .collect();
+            if rows.len() < FIRST_STRETCH_MIN {
+                continue;
+            }
+            let mut reading = vec![0.0; rec.n_nodes];
+            for &i in &rows {
+                for (d, v) in reading.iter_mut().zip(rec.sample(i)) {
+                    *d += v / rows.len() as f64;
+                }
+            }
+            t.reading = reading;
+            t.force_n = rows.iter().map(|&i| force[i]).sum::<f64>() / rows.len() as f64;
+            t.frames = rows.len();
+            t.lowest = false;
+        }
+    }
+
+    /// Counts every trial that never unloads from `reading` (a calibration's no-load reading,
+    /// where its rig rested at `force_n`) instead of its own lowest-force frames: a
+    /// characterisation recording that starts under a load (a creep run) has no zero of its
+    /// own. Returns how many trials took it.
+    pub fn use_zero_for_never_unloaded(&mut self, reading: &[f64], force_n: f64) -> usize {
+        let mut n = 0;
+        for t in self.trials.iter_mut().filter(|t| t.lowest) {
+            t.reading = reading.to_vec();
+            t.force_n = force_n;
+            t.lowest = false;
+            n += 1;
+        }
+        n
     }
 
     /// The baseline of trial `id` of recording `file`.

@@ -3,6 +3,7 @@
 use std::fmt::Write as _;
 
 use crate::calibration::{BlockSpec, CalibrationFile, ModelSpec};
+use crate::dynamics::Domain;
 
 fn fmt_f(x: f64) -> String {
     if x == x.trunc() && x.abs() < 1e15 {
@@ -83,11 +84,23 @@ fn write_block(out: &mut String, header: &str, b: &BlockSpec) {
     }
     let _ = writeln!(out, " }}");
     if let Some(c) = &b.creep {
+        let domain = match c.domain {
+            Domain::Reading => String::new(),
+            d => format!(", domain = {:?}", d.name()),
+        };
         let _ = writeln!(
             out,
-            "creep = {{ tau_s = [{}], share = [{}] }}",
+            "creep = {{ tau_s = [{}], share = [{}]{domain} }}",
             list(&c.tau_s),
             list(&c.share)
+        );
+    }
+    if let Some(h) = &b.hysteresis {
+        let _ = writeln!(
+            out,
+            "hysteresis = {{ threshold_n = [{}], weight = [{}] }}",
+            list(&h.threshold_n),
+            list(&h.weight)
         );
     }
 }
@@ -153,6 +166,7 @@ mod tests {
                 s_max_by_curvature: vec![],
             },
             creep: None,
+            hysteresis: None,
         }
     }
 

@@ -183,10 +183,11 @@ fn draw_stats(f: &mut Frame, area: Rect, s: &SensorState) {
     match &s.force {
         Some(fs) => {
             lines.push(Line::from(format!(
-                "force {} N | reading {} | curvature used {} 1/m",
+                "force {} N | reading {} | curvature used {} 1/m (model {:08x})",
                 fmt_num(fs.total_force_n),
                 fmt_num(fs.total_reading),
-                fmt_num(fs.curvature_m1)
+                fmt_num(fs.curvature_m1),
+                fs.curvature_model_version
             )));
             let reload = match s.cal_seen {
                 Some((_, Some(t))) => format!("reloaded {}", ago(Some(t))),

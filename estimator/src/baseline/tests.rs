@@ -345,3 +345,27 @@ fn knowing_the_direction_a_level_on_the_unloaded_side_replaces_the_baseline_at_o
         assert!(s.feed(&mut d, 1.5, 0.0, 0.0).is_empty(), "rises {rises}");
     }
 }
+
+#[test]
+fn knowing_the_direction_a_light_press_held_still_for_15_s_is_not_a_remount() {
+    // A light press (0.1 N: 4-5 counts on a node, 8-10 noise sd) held without tremor, as a
+    // protocol's 15 s hold at a low force on a stiff mounting: with the direction known it
+    // must stay 30 s to be taken for a remount.
+    let base: Vec<f64> = vec![100.0; 16];
+    let mut s = Stream::new(base, 0.5, 40.0, 17);
+    let mut d = BaselineDetector::new(DetectorConfig {
+        rises: Some(true),
+        ..DetectorConfig::default()
+    });
+    assert!(!s.feed(&mut d, 2.0, 0.0, 0.0).is_empty());
+    assert!(s.feed(&mut d, 15.0, 0.1, 0.0).is_empty(), "a 15 s hold");
+    assert!(!s.feed(&mut d, 3.0, 0.0, 0.0).is_empty(), "unloaded again");
+    // The same level for 35 s is a remount (the sensor was mounted on a higher curvature).
+    let got = s.feed(&mut d, 35.0, 0.1, 0.0);
+    assert!(!got.is_empty() && got[0].remount, "{got:?}");
+    // Not knowing the direction, 5 s are enough (rebaseline_s).
+    let mut s = Stream::new(vec![100.0; 16], 0.5, 40.0, 17);
+    let mut d = detector(false);
+    assert!(!s.feed(&mut d, 2.0, 0.0, 0.0).is_empty());
+    assert!(!s.feed(&mut d, 15.0, 0.1, 0.0).is_empty());
+}

@@ -1,461 +1,342 @@
-//! The JSON side of the MCAP files: one message struct per record type (field names carry
-//! units), the JSON Schema of each, and the conversions from and to [`Record`]. Non-finite
-//! floats are written as `null` and read back as NaN.
+//! The JSON side of the MCAP files, derived from the field tables of taxel-msgs: one JSON object
+//! per message with the payload's fields in table order (field names carry units; arrays hold
+//! the meaningful entries), and the JSON Schema of each payload. Non-finite floats are written
+//! as `null` and read back as NaN.
+//!
+//! Reading follows the channel's own schema: a field this build knows and the writer's schema
+//! lists must be present; one the writer did not have (an older version) reads as zero, and
+//! keys this build does not know (a newer version) are ignored. Estimates written before they
+//! carried `rows` and `cols` get the shape of their baseline (square, else one row).
 
-use serde::{Deserialize, Serialize};
+use std::fmt::Write as _;
 
-use crate::records::Record;
+use serde_json::{Map, Value};
+use taxel_msgs::{
+    sensor_id_str, CurvatureEstimate, Field, ForceSample, Message, RawFrame, Reference,
+    SensorIdBytes, Visitor,
+};
+
+use crate::records::{shape_of, Record};
 
 /// Schema names (the message types of docs/messages.md).
-pub const RAW_SCHEMA: &str = "taxel.RawFrame";
-pub const CURVATURE_SCHEMA: &str = "taxel.CurvatureEstimate";
-pub const FORCE_SCHEMA: &str = "taxel.ForceSample";
-pub const REFERENCE_SCHEMA: &str = "taxel.Reference";
+pub const RAW_SCHEMA: &str = RawFrame::NAME;
+pub const CURVATURE_SCHEMA: &str = CurvatureEstimate::NAME;
+pub const FORCE_SCHEMA: &str = ForceSample::NAME;
+pub const REFERENCE_SCHEMA: &str = Reference::NAME;
 
-/// Serde helpers: non-finite f32 <-> JSON null.
-mod nullable {
-    use serde::{Deserialize, Deserializer, Serializer};
+/// Writes a JSON object in table order.
+struct Writer {
+    out: String,
+}
 
-    pub fn serialize<S: Serializer>(v: &f32, s: S) -> Result<S::Ok, S::Error> {
+impl Writer {
+    fn key(&mut self, f: &Field) {
+        self.out.push(if self.out.is_empty() { '{' } else { ',' });
+        let _ = write!(self.out, "\"{}\":", f.name);
+    }
+    fn number<T: serde::Serialize>(&mut self, v: T) {
+        match serde_json::to_string(&v) {
+            Ok(s) => self.out.push_str(&s),
+            Err(_) => self.out.push_str("null"),
+        }
+    }
+    fn float32(&mut self, v: f32) {
         if v.is_finite() {
-            s.serialize_f32(*v)
+            self.number(v);
         } else {
-            s.serialize_none()
+            self.out.push_str("null");
         }
     }
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f32, D::Error> {
-        Ok(Option::<f32>::deserialize(d)?.unwrap_or(f32::NAN))
+}
+
+impl Visitor for Writer {
+    fn sensor(&mut self, f: &Field, v: &mut SensorIdBytes) {
+        self.key(f);
+        self.number(sensor_id_str(v));
     }
-
-    pub mod vec {
-        use serde::ser::SerializeSeq;
-        use serde::{Deserialize, Deserializer, Serializer};
-
-        pub fn serialize<S: Serializer>(v: &[f32], s: S) -> Result<S::Ok, S::Error> {
-            let mut seq = s.serialize_seq(Some(v.len()))?;
-            for x in v {
-                seq.serialize_element(&x.is_finite().then_some(*x))?;
+    fn u64(&mut self, f: &Field, v: &mut u64) {
+        self.key(f);
+        let _ = write!(self.out, "{v}");
+    }
+    fn u32(&mut self, f: &Field, v: &mut u32) {
+        self.key(f);
+        let _ = write!(self.out, "{v}");
+    }
+    fn u16(&mut self, f: &Field, v: &mut u16) {
+        self.key(f);
+        let _ = write!(self.out, "{v}");
+    }
+    fn i32(&mut self, f: &Field, v: &mut i32) {
+        self.key(f);
+        let _ = write!(self.out, "{v}");
+    }
+    fn f32(&mut self, f: &Field, v: &mut f32) {
+        self.key(f);
+        self.float32(*v);
+    }
+    fn f64(&mut self, f: &Field, v: &mut f64) {
+        self.key(f);
+        if v.is_finite() {
+            self.number(*v);
+        } else {
+            self.out.push_str("null");
+        }
+    }
+    fn f32s(&mut self, f: &Field, v: &mut [f32], len: &mut usize) {
+        self.key(f);
+        self.out.push('[');
+        for (i, x) in v[..(*len).min(v.len())].iter().enumerate() {
+            if i > 0 {
+                self.out.push(',');
             }
-            seq.end()
+            self.float32(*x);
         }
-        pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f32>, D::Error> {
-            Ok(Vec::<Option<f32>>::deserialize(d)?
-                .into_iter()
-                .map(|x| x.unwrap_or(f32::NAN))
-                .collect())
-        }
+        self.out.push(']');
     }
 }
 
-#[derive(Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RawMsg {
-    sensor: String,
-    seq: u64,
-    t_capture_ns: u64,
-    rows: u16,
-    cols: u16,
-    flags: u32,
-    source: u32,
-    #[serde(with = "nullable")]
-    full_scale: f32,
-    #[serde(with = "nullable::vec")]
-    counts: Vec<f32>,
+/// The JSON message of a record.
+pub(super) fn encode(r: &Record) -> Vec<u8> {
+    let mut w = Writer { out: String::new() };
+    r.clone().visit(&mut w);
+    w.out.push('}');
+    w.out.into_bytes()
 }
 
-#[derive(Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct CurvatureMsg {
-    sensor: String,
-    seq: u64,
-    t_capture_ns: u64,
-    t_window_start_ns: u64,
-    #[serde(with = "nullable")]
-    curvature_m1: f32,
-    #[serde(with = "nullable")]
-    curvature_sd_m1: f32,
-    model_version: u32,
-    flags: u32,
-    window_frames: u32,
-    #[serde(with = "nullable::vec")]
-    baseline: Vec<f32>,
+/// Collects the JSON Schema properties of a payload.
+struct SchemaWriter {
+    props: Vec<String>,
+    required: Vec<String>,
 }
 
-#[derive(Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ForceMsg {
-    sensor: String,
-    seq: u64,
-    t_capture_ns: u64,
-    t_publish_ns: u64,
-    #[serde(with = "nullable")]
-    total_force_n: f32,
-    #[serde(with = "nullable")]
-    total_reading: f32,
-    #[serde(with = "nullable")]
-    curvature_m1: f32,
-    cal_version: u32,
-    cal_generation: u32,
-    flags: u32,
-    #[serde(with = "nullable::vec")]
-    block_force_n: Vec<f32>,
-    #[serde(with = "nullable::vec")]
-    block_reading: Vec<f32>,
+impl SchemaWriter {
+    fn prop(&mut self, f: &Field, ty: &str) {
+        self.props.push(format!(
+            r#""{}":{{{ty},"description":{}}}"#,
+            f.name,
+            serde_json::to_string(f.doc).unwrap_or_else(|_| "\"\"".into())
+        ));
+        self.required.push(format!(r#""{}""#, f.name));
+    }
 }
 
-#[derive(Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct ReferenceMsg {
-    sensor: String,
-    seq: u64,
-    t_capture_ns: u64,
-    t_source_s: f64,
-    #[serde(with = "nullable")]
-    force_n: f32,
-    #[serde(with = "nullable")]
-    curvature_m1: f32,
-    #[serde(with = "nullable")]
-    temp_c: f32,
-    trial: i32,
+const INT: &str = r#""type":"integer""#;
+const NUM: &str = r#""type":["number","null"]"#;
+
+impl Visitor for SchemaWriter {
+    fn sensor(&mut self, f: &Field, _: &mut SensorIdBytes) {
+        self.prop(f, r#""type":"string""#);
+    }
+    fn u64(&mut self, f: &Field, _: &mut u64) {
+        self.prop(f, INT);
+    }
+    fn u32(&mut self, f: &Field, _: &mut u32) {
+        self.prop(f, INT);
+    }
+    fn u16(&mut self, f: &Field, _: &mut u16) {
+        self.prop(f, INT);
+    }
+    fn i32(&mut self, f: &Field, _: &mut i32) {
+        self.prop(f, INT);
+    }
+    fn f32(&mut self, f: &Field, _: &mut f32) {
+        self.prop(f, NUM);
+    }
+    fn f64(&mut self, f: &Field, _: &mut f64) {
+        self.prop(f, NUM);
+    }
+    fn f32s(&mut self, f: &Field, _: &mut [f32], _: &mut usize) {
+        self.prop(f, r#""type":"array","items":{"type":["number","null"]}"#);
+    }
 }
 
-fn int(desc: &str) -> String {
-    format!(r#"{{"type":"integer","description":"{desc}"}}"#)
-}
-fn num(desc: &str) -> String {
-    format!(r#"{{"type":["number","null"],"description":"{desc}"}}"#)
-}
-fn arr(desc: &str) -> String {
-    format!(r#"{{"type":"array","items":{{"type":["number","null"]}},"description":"{desc}"}}"#)
-}
-
-fn schema(title: &str, props: &[(&str, String)]) -> String {
-    let body: Vec<String> = props.iter().map(|(k, v)| format!(r#""{k}":{v}"#)).collect();
-    let required: Vec<String> = props.iter().map(|(k, _)| format!(r#""{k}""#)).collect();
+fn schema_of<M: Message>() -> String {
+    let mut s = SchemaWriter {
+        props: Vec::new(),
+        required: Vec::new(),
+    };
+    M::zero().visit(&mut s);
     format!(
-        r#"{{"$schema":"https://json-schema.org/draft/2020-12/schema","title":"{title}","type":"object","properties":{{{}}},"required":[{}],"additionalProperties":false}}"#,
-        body.join(","),
-        required.join(",")
+        r#"{{"$schema":"https://json-schema.org/draft/2020-12/schema","title":"{}","type":"object","properties":{{{}}},"required":[{}],"additionalProperties":false}}"#,
+        M::NAME,
+        s.props.join(","),
+        s.required.join(",")
     )
-}
-
-fn common() -> Vec<(&'static str, String)> {
-    vec![
-        (
-            "sensor",
-            r#"{"type":"string","description":"sensor id"}"#.into(),
-        ),
-        ("seq", int("frame sequence number from the publisher")),
-        (
-            "t_capture_ns",
-            int("capture time of the raw frame, CLOCK_MONOTONIC ns"),
-        ),
-    ]
 }
 
 /// The JSON Schema of each message type, by schema name.
 pub fn json_schema(name: &str) -> Option<String> {
-    let mut p = common();
-    match name {
-        RAW_SCHEMA => {
-            p.extend([
-                ("rows", int("rows of the array")),
-                ("cols", int("columns of the array")),
-                ("flags", int("RawFrame flags bits (docs/messages.md)")),
-                ("source", int("source kind: 0 sim, 1 replay, 2 serial")),
-                ("full_scale", num("largest valid reading (counts)")),
-                (
-                    "counts",
-                    arr("raw reading per node, row-major (ADC counts)"),
-                ),
-            ]);
-        }
-        CURVATURE_SCHEMA => {
-            p.extend([
-                (
-                    "t_window_start_ns",
-                    int("capture time of the first frame of the baseline window, ns"),
-                ),
-                ("curvature_m1", num("estimated curvature (1/m)")),
-                (
-                    "curvature_sd_m1",
-                    num("standard deviation of the estimate (1/m)"),
-                ),
-                ("model_version", int("curvature model version")),
-                ("flags", int("CurvatureEstimate flags bits")),
-                ("window_frames", int("frames in the baseline window")),
-                ("baseline", arr("no-load baseline per node (ADC counts)")),
-            ]);
-        }
-        FORCE_SCHEMA => {
-            p.extend([
-                (
-                    "t_publish_ns",
-                    int("time the calibrator published, CLOCK_MONOTONIC ns"),
-                ),
-                ("total_force_n", num("force on the whole array (N)")),
-                (
-                    "total_reading",
-                    num("baseline-subtracted sum of counts of the array"),
-                ),
-                (
-                    "curvature_m1",
-                    num("curvature used by the calibration (1/m)"),
-                ),
-                (
-                    "cal_version",
-                    int("version declared in the calibration file"),
-                ),
-                (
-                    "cal_generation",
-                    int("calibration files loaded by the calibrator (1 = first)"),
-                ),
-                ("flags", int("ForceSample flags bits (docs/messages.md)")),
-                ("block_force_n", arr("force per calibration block (N)")),
-                (
-                    "block_reading",
-                    arr("baseline-subtracted sum of counts per block"),
-                ),
-            ]);
-        }
-        REFERENCE_SCHEMA => {
-            p.extend([
-                (
-                    "t_source_s",
-                    r#"{"type":"number","description":"source time (s): simulation time or the recording's t_s"}"#
-                        .into(),
-                ),
-                ("force_n", num("reference total force (N); null = unknown")),
-                (
-                    "curvature_m1",
-                    num("reference mounting curvature (1/m); null = unknown"),
-                ),
-                ("temp_c", num("ambient temperature (degC); null = unknown")),
-                ("trial", int("trial (mounting) index; -1 = unknown")),
-            ]);
-        }
+    Some(match name {
+        RAW_SCHEMA => schema_of::<RawFrame>(),
+        CURVATURE_SCHEMA => schema_of::<CurvatureEstimate>(),
+        FORCE_SCHEMA => schema_of::<ForceSample>(),
+        REFERENCE_SCHEMA => schema_of::<Reference>(),
         _ => return None,
-    }
-    Some(schema(name, &p))
+    })
 }
 
-/// Stream name, schema name, sensor, seq, log time and publish time of a record.
-pub(super) fn describe(r: &Record) -> (&'static str, &'static str, &str, u64, u64, u64) {
-    match r {
-        Record::Raw {
-            sensor,
-            seq,
-            t_capture_ns,
-            ..
-        } => (
-            "raw",
-            RAW_SCHEMA,
-            sensor,
-            *seq,
-            *t_capture_ns,
-            *t_capture_ns,
-        ),
-        Record::Curvature {
-            sensor,
-            seq,
-            t_capture_ns,
-            ..
-        } => (
-            "curvature",
-            CURVATURE_SCHEMA,
-            sensor,
-            *seq,
-            *t_capture_ns,
-            *t_capture_ns,
-        ),
-        Record::Force {
-            sensor,
-            seq,
-            t_capture_ns,
-            t_publish_ns,
-            ..
-        } => (
-            "force",
-            FORCE_SCHEMA,
-            sensor,
-            *seq,
-            *t_capture_ns,
-            *t_publish_ns,
-        ),
-        Record::Reference {
-            sensor,
-            seq,
-            t_capture_ns,
-            ..
-        } => (
-            "reference",
-            REFERENCE_SCHEMA,
-            sensor,
-            *seq,
-            *t_capture_ns,
-            *t_capture_ns,
-        ),
-    }
+/// The fields a channel's writer declared (its schema's `required` list); `None` when the
+/// schema does not say (then every field this build knows is required).
+pub(super) fn declared_fields(schema: &[u8]) -> Option<Vec<String>> {
+    let v: Value = serde_json::from_slice(schema).ok()?;
+    v.get("required")?
+        .as_array()?
+        .iter()
+        .map(|k| k.as_str().map(str::to_string))
+        .collect()
 }
 
-/// The MCAP topic of a sensor's stream.
-pub(super) fn encode(r: &Record) -> Result<Vec<u8>, serde_json::Error> {
-    match r.clone() {
-        Record::Raw {
-            sensor,
-            seq,
-            t_capture_ns,
-            rows,
-            cols,
-            flags,
-            source,
-            full_scale,
-            counts,
-        } => serde_json::to_vec(&RawMsg {
-            sensor,
-            seq,
-            t_capture_ns,
-            rows,
-            cols,
-            flags,
-            source,
-            full_scale,
-            counts,
-        }),
-        Record::Curvature {
-            sensor,
-            seq,
-            t_capture_ns,
-            t_window_start_ns,
-            curvature_m1,
-            curvature_sd_m1,
-            model_version,
-            flags,
-            window_frames,
-            baseline,
-        } => serde_json::to_vec(&CurvatureMsg {
-            sensor,
-            seq,
-            t_capture_ns,
-            t_window_start_ns,
-            curvature_m1,
-            curvature_sd_m1,
-            model_version,
-            flags,
-            window_frames,
-            baseline,
-        }),
-        Record::Force {
-            sensor,
-            seq,
-            t_capture_ns,
-            t_publish_ns,
-            total_force_n,
-            total_reading,
-            curvature_m1,
-            cal_version,
-            cal_generation,
-            flags,
-            block_force_n,
-            block_reading,
-        } => serde_json::to_vec(&ForceMsg {
-            sensor,
-            seq,
-            t_capture_ns,
-            t_publish_ns,
-            total_force_n,
-            total_reading,
-            curvature_m1,
-            cal_version,
-            cal_generation,
-            flags,
-            block_force_n,
-            block_reading,
-        }),
-        Record::Reference {
-            sensor,
-            seq,
-            t_capture_ns,
-            t_source_s,
-            force_n,
-            curvature_m1,
-            temp_c,
-            trial,
-        } => serde_json::to_vec(&ReferenceMsg {
-            sensor,
-            seq,
-            t_capture_ns,
-            t_source_s,
-            force_n,
-            curvature_m1,
-            temp_c,
-            trial,
-        }),
+/// Reads a JSON object into a payload.
+struct Reader<'a> {
+    obj: &'a Map<String, Value>,
+    declared: Option<&'a [String]>,
+    err: Option<String>,
+}
+
+impl Reader<'_> {
+    /// The value of field `f`; `None` when it is absent and the writer did not have it (it
+    /// stays zero), or after an error.
+    fn get(&mut self, f: &Field) -> Option<&Value> {
+        if self.err.is_some() {
+            return None;
+        }
+        match self.obj.get(f.name) {
+            Some(v) => Some(v),
+            None => {
+                let declared = self.declared.is_none_or(|d| d.iter().any(|k| k == f.name));
+                if declared {
+                    self.err = Some(format!("missing field `{}`", f.name));
+                }
+                None
+            }
+        }
+    }
+
+    fn fail(&mut self, f: &Field, what: &str) {
+        self.err
+            .get_or_insert(format!("field `{}`: expected {what}", f.name));
+    }
+
+    fn int<T: TryFrom<i128>>(&mut self, f: &Field, v: &mut T) {
+        let got = self.get(f).map(|j| {
+            j.as_u64()
+                .map(i128::from)
+                .or_else(|| j.as_i64().map(i128::from))
+        });
+        match got {
+            None => {}
+            Some(Some(x)) => match T::try_from(x) {
+                Ok(x) => *v = x,
+                Err(_) => self.fail(f, &format!("an integer in range, got {x}")),
+            },
+            Some(None) => self.fail(f, "an integer"),
+        }
+    }
+
+    fn float(&mut self, f: &Field) -> Option<f64> {
+        let j = self.get(f)?;
+        if j.is_null() {
+            return Some(f64::NAN);
+        }
+        let x = j.as_f64();
+        if x.is_none() {
+            self.fail(f, "a number or null");
+        }
+        x
     }
 }
 
-pub(super) fn decode(schema: &str, data: &[u8]) -> Result<Record, String> {
-    let e = |x: serde_json::Error| x.to_string();
+impl Visitor for Reader<'_> {
+    fn sensor(&mut self, f: &Field, v: &mut SensorIdBytes) {
+        let got = self.get(f).map(|j| j.as_str().map(str::to_string));
+        match got {
+            None => {}
+            Some(Some(s)) if s.len() < v.len() => v[..s.len()].copy_from_slice(s.as_bytes()),
+            Some(_) => self.fail(f, &format!("a string of at most {} bytes", v.len() - 1)),
+        }
+    }
+    fn u64(&mut self, f: &Field, v: &mut u64) {
+        self.int(f, v);
+    }
+    fn u32(&mut self, f: &Field, v: &mut u32) {
+        self.int(f, v);
+    }
+    fn u16(&mut self, f: &Field, v: &mut u16) {
+        self.int(f, v);
+    }
+    fn i32(&mut self, f: &Field, v: &mut i32) {
+        self.int(f, v);
+    }
+    fn f32(&mut self, f: &Field, v: &mut f32) {
+        if let Some(x) = self.float(f) {
+            *v = x as f32;
+        }
+    }
+    fn f64(&mut self, f: &Field, v: &mut f64) {
+        if let Some(x) = self.float(f) {
+            *v = x;
+        }
+    }
+    fn f32s(&mut self, f: &Field, v: &mut [f32], len: &mut usize) {
+        *len = 0;
+        let got = self.get(f).map(|j| j.as_array().cloned());
+        let items = match got {
+            None => return,
+            Some(Some(a)) if a.len() <= v.len() => a,
+            Some(Some(a)) => {
+                return self.fail(f, &format!("at most {} entries, got {}", v.len(), a.len()))
+            }
+            Some(None) => return self.fail(f, "an array"),
+        };
+        for (x, j) in v.iter_mut().zip(&items) {
+            *x = match (j.is_null(), j.as_f64()) {
+                (true, _) => f32::NAN,
+                (false, Some(y)) => y as f32,
+                (false, None) => return self.fail(f, "numbers or null"),
+            };
+        }
+        *len = items.len();
+    }
+    fn invalid(&mut self, why: String) {
+        self.err.get_or_insert(why);
+    }
+}
+
+fn read<M: Message>(obj: &Map<String, Value>, declared: Option<&[String]>) -> Result<M, String> {
+    let mut m = M::zero();
+    let mut r = Reader {
+        obj,
+        declared,
+        err: None,
+    };
+    m.visit(&mut r);
+    r.err.map_or(Ok(m), Err)
+}
+
+/// Decodes a message of schema `schema` whose channel declared the fields `declared`.
+pub(super) fn decode(
+    schema: &str,
+    declared: Option<&[String]>,
+    data: &[u8],
+) -> Result<Record, String> {
+    let mut obj: Map<String, Value> = serde_json::from_slice(data).map_err(|e| e.to_string())?;
     Ok(match schema {
-        RAW_SCHEMA => {
-            let m: RawMsg = serde_json::from_slice(data).map_err(e)?;
-            Record::Raw {
-                sensor: m.sensor,
-                seq: m.seq,
-                t_capture_ns: m.t_capture_ns,
-                rows: m.rows,
-                cols: m.cols,
-                flags: m.flags,
-                source: m.source,
-                full_scale: m.full_scale,
-                counts: m.counts,
-            }
-        }
+        RAW_SCHEMA => read::<RawFrame>(&obj, declared)?.into(),
         CURVATURE_SCHEMA => {
-            let m: CurvatureMsg = serde_json::from_slice(data).map_err(e)?;
-            Record::Curvature {
-                sensor: m.sensor,
-                seq: m.seq,
-                t_capture_ns: m.t_capture_ns,
-                t_window_start_ns: m.t_window_start_ns,
-                curvature_m1: m.curvature_m1,
-                curvature_sd_m1: m.curvature_sd_m1,
-                model_version: m.model_version,
-                flags: m.flags,
-                window_frames: m.window_frames,
-                baseline: m.baseline,
+            // Written before estimates carried their shape: take it from the baseline.
+            if !obj.contains_key("rows") && !obj.contains_key("cols") {
+                let n = obj
+                    .get("baseline")
+                    .and_then(Value::as_array)
+                    .map_or(0, Vec::len);
+                let (rows, cols) = shape_of(n);
+                obj.insert("rows".into(), rows.into());
+                obj.insert("cols".into(), cols.into());
             }
+            read::<CurvatureEstimate>(&obj, declared)?.into()
         }
-        FORCE_SCHEMA => {
-            let m: ForceMsg = serde_json::from_slice(data).map_err(e)?;
-            Record::Force {
-                sensor: m.sensor,
-                seq: m.seq,
-                t_capture_ns: m.t_capture_ns,
-                t_publish_ns: m.t_publish_ns,
-                total_force_n: m.total_force_n,
-                total_reading: m.total_reading,
-                curvature_m1: m.curvature_m1,
-                cal_version: m.cal_version,
-                cal_generation: m.cal_generation,
-                flags: m.flags,
-                block_force_n: m.block_force_n,
-                block_reading: m.block_reading,
-            }
-        }
-        REFERENCE_SCHEMA => {
-            let m: ReferenceMsg = serde_json::from_slice(data).map_err(e)?;
-            Record::Reference {
-                sensor: m.sensor,
-                seq: m.seq,
-                t_capture_ns: m.t_capture_ns,
-                t_source_s: m.t_source_s,
-                force_n: m.force_n,
-                curvature_m1: m.curvature_m1,
-                temp_c: m.temp_c,
-                trial: m.trial,
-            }
-        }
+        FORCE_SCHEMA => read::<ForceSample>(&obj, declared)?.into(),
+        REFERENCE_SCHEMA => read::<Reference>(&obj, declared)?.into(),
         other => return Err(format!("unknown schema {other:?}")),
     })
 }

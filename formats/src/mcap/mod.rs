@@ -13,10 +13,12 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
+use taxel_msgs::sensor_id_str;
+
 use crate::csv::Recording;
 use crate::records::Record;
 
-use json::{decode, describe, encode};
+use json::{declared_fields, decode, encode};
 pub use json::{json_schema, CURVATURE_SCHEMA, FORCE_SCHEMA, RAW_SCHEMA, REFERENCE_SCHEMA};
 
 /// Why an MCAP file could not be written or read.
@@ -97,7 +99,13 @@ impl McapRecordWriter {
 
     /// Appends one record on its sensor's channel.
     pub fn write(&mut self, r: &Record) -> Result<(), McapError> {
-        let (stream, schema_name, sensor, seq, log_time, publish_time) = describe(r);
+        let (stream, schema_name, sensor, seq) =
+            (r.stream().suffix(), r.name(), r.sensor(), r.seq());
+        let log_time = r.t_capture_ns();
+        let publish_time = match r {
+            Record::Force(f) => f.t_publish_ns,
+            _ => log_time,
+        };
         let schema_id = match self.schemas.get(schema_name) {
             Some(id) => *id,
             None => {
@@ -125,12 +133,7 @@ impl McapRecordWriter {
                 id
             }
         };
-        let data = encode(r).map_err(|e| McapError::Message {
-            path: self.path.clone(),
-            index: self.written as usize,
-            topic: topic(sensor, stream),
-            reason: e.to_string(),
-        })?;
+        let data = encode(r);
         let header = ::mcap::records::MessageHeader {
             channel_id,
             sequence: seq as u32,
@@ -173,11 +176,26 @@ pub fn read_messages(path: &Path) -> Result<Vec<McapMessage>, McapError> {
 
 /// [`read_messages`] on bytes already read from `path`.
 fn parse_messages(path: &Path, bytes: &[u8]) -> Result<Vec<McapMessage>, McapError> {
+    let mut out = Vec::new();
+    for_each_message(path, bytes, |m| {
+        out.push(m);
+        Ok(())
+    })?;
+    Ok(out)
+}
+
+/// Decodes every message of `bytes` (read from `path`) in file order and hands it to `f`.
+fn for_each_message(
+    path: &Path,
+    bytes: &[u8],
+    mut f: impl FnMut(McapMessage) -> Result<(), McapError>,
+) -> Result<(), McapError> {
     let stream = ::mcap::MessageStream::new(bytes).map_err(|error| McapError::Mcap {
         path: path.to_path_buf(),
         error,
     })?;
-    let mut out = Vec::new();
+    // The fields each channel's writer declared in its schema.
+    let mut declared: HashMap<u16, Option<Vec<String>>> = HashMap::new();
     for (index, m) in stream.enumerate() {
         let m = m.map_err(|error| McapError::Stream {
             path: path.to_path_buf(),
@@ -185,9 +203,12 @@ fn parse_messages(path: &Path, bytes: &[u8]) -> Result<Vec<McapMessage>, McapErr
             error,
         })?;
         let topic = m.channel.topic.clone();
-        let schema = m.channel.schema.as_ref().map(|s| s.name.clone());
+        let schema = m.channel.schema.as_ref();
+        let fields = declared
+            .entry(m.channel.id)
+            .or_insert_with(|| schema.and_then(|s| declared_fields(&s.data)));
         let record = match (m.channel.message_encoding.as_str(), schema) {
-            ("json", Some(schema)) => decode(&schema, &m.data),
+            ("json", Some(schema)) => decode(&schema.name, fields.as_deref(), &m.data),
             (enc, _) => Err(format!("message encoding {enc:?} with no taxel schema")),
         }
         .map_err(|reason| McapError::Message {
@@ -196,15 +217,15 @@ fn parse_messages(path: &Path, bytes: &[u8]) -> Result<Vec<McapMessage>, McapErr
             topic: topic.clone(),
             reason,
         })?;
-        out.push(McapMessage {
+        f(McapMessage {
             topic,
             log_time: m.log_time,
             publish_time: m.publish_time,
             sequence: m.sequence,
             record,
-        });
+        })?;
     }
-    Ok(out)
+    Ok(())
 }
 
 /// The raw channel of one sensor of an MCAP file, as a recording: `t_s` = `t_capture_ns` / 1e9,
@@ -218,29 +239,78 @@ pub struct McapRecording {
     pub full_scale: f32,
 }
 
-/// Reads the raw frames of `sensor` (default: the only sensor with a raw channel).
+/// A raw frame as [`read_recording`] keeps it: where it was in the file, and its values.
+struct Frame {
+    sensor: String,
+    index: usize,
+    topic: String,
+    seq: u64,
+    t_capture_ns: u64,
+    rows: u16,
+    cols: u16,
+    full_scale: f32,
+    counts: Vec<f32>,
+}
+
+/// Reads the raw frames of `sensor` (default: the only sensor with a raw channel). Every
+/// message of the file is decoded (a damaged one is an error); only the raw frames and
+/// reference values are kept, compactly.
 pub fn read_recording(path: &Path, sensor: Option<&str>) -> Result<McapRecording, McapError> {
     let content = |reason: String| McapError::Content {
         path: path.to_path_buf(),
         reason,
     };
-    let msgs = read_messages(path)?;
-    let mut sensors: Vec<&str> = Vec::new();
-    for m in &msgs {
-        if let Record::Raw { sensor: s, .. } = &m.record {
-            if !sensors.contains(&s.as_str()) {
-                sensors.push(s);
+    let bytes = std::fs::read(path).map_err(|error| McapError::Io {
+        path: path.to_path_buf(),
+        error,
+    })?;
+    let mut sensors: Vec<String> = Vec::new();
+    let mut frames: Vec<Frame> = Vec::new();
+    let mut refs: HashMap<(String, u64), (f64, f64, f64, i64)> = HashMap::new();
+    let mut index = 0;
+    for_each_message(path, &bytes, |m| {
+        match &m.record {
+            Record::Raw(f) => {
+                let s = sensor_id_str(&f.sensor).to_string();
+                if !sensors.contains(&s) {
+                    sensors.push(s.clone());
+                }
+                frames.push(Frame {
+                    sensor: s,
+                    index,
+                    topic: m.topic.clone(),
+                    seq: f.seq,
+                    t_capture_ns: f.t_capture_ns,
+                    rows: f.rows,
+                    cols: f.cols,
+                    full_scale: f.full_scale,
+                    counts: f.nodes().to_vec(),
+                });
             }
+            Record::Reference(r) => {
+                refs.insert(
+                    (sensor_id_str(&r.sensor).to_string(), r.seq),
+                    (
+                        r.force_n as f64,
+                        r.curvature_m1 as f64,
+                        r.temp_c as f64,
+                        r.trial as i64,
+                    ),
+                );
+            }
+            _ => {}
         }
-    }
+        index += 1;
+        Ok(())
+    })?;
     let chosen = match sensor {
-        Some(want) if sensors.contains(&want) => want.to_string(),
+        Some(want) if sensors.iter().any(|s| s == want) => want.to_string(),
         Some(want) => {
             return Err(content(format!(
                 "no raw channel for sensor {want:?} (raw channels: {sensors:?})"
             )))
         }
-        None if sensors.len() == 1 => sensors[0].to_string(),
+        None if sensors.len() == 1 => sensors[0].clone(),
         None if sensors.is_empty() => return Err(content("no raw channel".into())),
         None => {
             return Err(content(format!(
@@ -248,32 +318,7 @@ pub fn read_recording(path: &Path, sensor: Option<&str>) -> Result<McapRecording
             )))
         }
     };
-    let mut refs: HashMap<u64, (f64, f64, f64, i64)> = HashMap::new();
-    for m in &msgs {
-        if let Record::Reference {
-            sensor: s,
-            seq,
-            force_n,
-            curvature_m1,
-            temp_c,
-            trial,
-            ..
-        } = &m.record
-        {
-            if *s == chosen {
-                refs.insert(
-                    *seq,
-                    (
-                        *force_n as f64,
-                        *curvature_m1 as f64,
-                        *temp_c as f64,
-                        *trial as i64,
-                    ),
-                );
-            }
-        }
-    }
-    let has_ref = !refs.is_empty();
+    let has_ref = refs.keys().any(|(s, _)| *s == chosen);
     let mut rec = Recording {
         path: path.to_path_buf(),
         n_nodes: 0,
@@ -285,51 +330,49 @@ pub fn read_recording(path: &Path, sensor: Option<&str>) -> Result<McapRecording
         trial: has_ref.then(Vec::new),
     };
     let (mut rows, mut cols, mut full_scale) = (0usize, 0usize, 0f32);
-    for (index, m) in msgs.iter().enumerate() {
-        let Record::Raw {
+    for frame in frames {
+        let Frame {
             sensor: s,
+            index,
+            topic,
             seq,
             t_capture_ns,
             rows: r,
             cols: c,
             full_scale: fs,
             counts,
-            ..
-        } = &m.record
-        else {
-            continue;
-        };
-        if *s != chosen {
+        } = frame;
+        if s != chosen {
             continue;
         }
         if rec.t_s.is_empty() {
-            (rows, cols, full_scale) = (*r as usize, *c as usize, *fs);
+            (rows, cols, full_scale) = (r as usize, c as usize, fs);
             rec.n_nodes = counts.len();
             if rec.n_nodes == 0 || rows * cols != rec.n_nodes {
                 return Err(McapError::Message {
                     path: path.to_path_buf(),
                     index,
-                    topic: m.topic.clone(),
+                    topic,
                     reason: format!("{} counts for a {r} x {c} array", counts.len()),
                 });
             }
-        } else if (*r as usize, *c as usize) != (rows, cols) || counts.len() != rec.n_nodes {
+        } else if (r as usize, c as usize) != (rows, cols) || counts.len() != rec.n_nodes {
             return Err(McapError::Message {
                 path: path.to_path_buf(),
                 index,
-                topic: m.topic.clone(),
+                topic,
                 reason: format!(
                     "{} counts for a {r} x {c} array after {rows} x {cols} frames",
                     counts.len()
                 ),
             });
         }
-        rec.t_s.push(*t_capture_ns as f64 / 1e9);
+        rec.t_s.push(t_capture_ns as f64 / 1e9);
         rec.nodes.extend(counts.iter().map(|v| *v as f64));
-        let (f, cu, te, tr) = refs
-            .get(seq)
-            .copied()
-            .unwrap_or((f64::NAN, f64::NAN, f64::NAN, -1));
+        let (f, cu, te, tr) =
+            refs.get(&(s, seq))
+                .copied()
+                .unwrap_or((f64::NAN, f64::NAN, f64::NAN, -1));
         for (col, v) in [
             (&mut rec.force_n, f),
             (&mut rec.curvature_m1, cu),
@@ -366,55 +409,40 @@ mod tests {
     use super::*;
 
     fn records() -> Vec<Record> {
-        vec![
-            Record::Raw {
-                sensor: "s0".into(),
-                seq: 1,
-                t_capture_ns: 1_700_000_000_123_456_789,
-                rows: 2,
-                cols: 2,
-                flags: 0,
-                source: 0,
-                full_scale: 1023.0,
-                counts: vec![1.0, 2.5, 1023.0, f32::NAN],
-            },
-            Record::Reference {
-                sensor: "s0".into(),
-                seq: 1,
-                t_capture_ns: 1_700_000_000_123_456_789,
-                t_source_s: 0.25,
-                force_n: f32::NAN,
-                curvature_m1: 30.0,
-                temp_c: f32::NAN,
-                trial: -1,
-            },
-            Record::Force {
-                sensor: "glove-1".into(),
-                seq: 7,
-                t_capture_ns: 5,
-                t_publish_ns: 9,
-                total_force_n: 1.5,
-                total_reading: 400.0,
-                curvature_m1: 0.0,
-                cal_version: 3,
-                cal_generation: 2,
-                flags: 0b100,
-                block_force_n: vec![0.5, 1.0],
-                block_reading: vec![100.0, 300.0],
-            },
-            Record::Curvature {
-                sensor: "s0".into(),
-                seq: 2,
-                t_capture_ns: 10,
-                t_window_start_ns: 3,
-                curvature_m1: 29.75,
-                curvature_sd_m1: 0.5,
-                model_version: 1,
-                flags: 0,
-                window_frames: 50,
-                baseline: vec![500.0; 4],
-            },
-        ]
+        let id = |s: &str| taxel_msgs::sensor_id_bytes(s).expect("id");
+        let mut raw = taxel_msgs::RawFrame::ZERO;
+        (raw.sensor, raw.seq, raw.t_capture_ns) = (id("s0"), 1, 1_700_000_000_123_456_789);
+        (raw.rows, raw.cols, raw.full_scale) = (2, 2, 1023.0);
+        raw.counts[..4].copy_from_slice(&[1.0, 2.5, 1023.0, f32::NAN]);
+        let reference = taxel_msgs::Reference {
+            sensor: id("s0"),
+            seq: 1,
+            t_capture_ns: 1_700_000_000_123_456_789,
+            t_source_s: 0.25,
+            force_n: f32::NAN,
+            curvature_m1: 30.0,
+            temp_c: f32::NAN,
+            trial: -1,
+        };
+        let mut force = taxel_msgs::ForceSample::ZERO;
+        (
+            force.sensor,
+            force.seq,
+            force.t_capture_ns,
+            force.t_publish_ns,
+        ) = (id("glove-1"), 7, 5, 9);
+        (force.total_force_n, force.total_reading, force.curvature_m1) = (1.5, 400.0, 0.0);
+        (force.cal_version, force.cal_generation, force.flags) = (3, 2, 0b100);
+        force.curvature_model_version = 0x52b5_1ca6;
+        force.n_blocks = 2;
+        force.block_force_n[..2].copy_from_slice(&[0.5, 1.0]);
+        force.block_reading[..2].copy_from_slice(&[100.0, 300.0]);
+        let mut est = taxel_msgs::CurvatureEstimate::ZERO;
+        (est.sensor, est.seq, est.t_capture_ns, est.t_window_start_ns) = (id("s0"), 2, 10, 3);
+        (est.curvature_m1, est.curvature_sd_m1, est.model_version) = (29.75, 0.5, 1);
+        (est.window_frames, est.estimate_index, est.rows, est.cols) = (50, 4, 2, 2);
+        est.baseline[..4].copy_from_slice(&[500.0; 4]);
+        vec![raw.into(), reference.into(), force.into(), est.into()]
     }
 
     /// Field-by-field equality with NaN == NaN.

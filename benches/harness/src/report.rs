@@ -1,0 +1,110 @@
+//! The report of a bench run: `bench.md` (a table per case), `bench.json` (the same numbers,
+//! one object) and the percentile plot `latency.{svg,png}`.
+
+use std::path::Path;
+
+use taxel_plot::{Chart, Mark, Series};
+use taxel_runtime::process::{Failure, ResultExt};
+
+use crate::CaseResult;
+
+/// Writes the report of `cases` into `out`; returns the Markdown table and the JSON object.
+pub(crate) fn write(
+    out: &Path,
+    rate: f64,
+    secs: f64,
+    cases: &[CaseResult],
+) -> Result<(String, String), Failure> {
+    let m = machine();
+    let mut md = format!(
+        "# taxel bench\n\n{m}; {rate} Hz, RawFrame payload ({} bytes), {secs} s per case, separate processes. Age = receive time - capture time (CLOCK_MONOTONIC); force paths are two hops.\n\n| case | rate (Hz) | received | dropped | p50 (us) | p90 (us) | p99 (us) | p99.9 (us) | max (us) | CPU of waiting processes (% core) | busiest process (% core) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+        crate::peers::MSG
+    );
+    for c in cases {
+        md.push_str(&format!(
+            "| {} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+            c.case,
+            c.rate_hz,
+            c.received,
+            c.dropped,
+            c.p50,
+            c.p90,
+            c.p99,
+            c.p999,
+            c.max,
+            c.cpu_pct,
+            c.cpu_pct_max_process
+        ));
+    }
+    let cases_json: Vec<String> = cases
+        .iter()
+        .map(|c| {
+            let num = |v: f64| if v.is_finite() { format!("{v:.1}") } else { "null".into() };
+            format!(
+                "{{\"case\": \"{}\", \"rate_hz\": {}, \"received\": {}, \"p50_us\": {}, \"p90_us\": {}, \"p99_us\": {}, \"p999_us\": {}, \"max_us\": {}, \"dropped\": {}, \"cpu_pct\": {}, \"cpu_pct_max_process\": {}}}",
+                c.case,
+                c.rate_hz,
+                num(c.received),
+                num(c.p50),
+                num(c.p90),
+                num(c.p99),
+                num(c.p999),
+                num(c.max),
+                num(c.dropped),
+                num(c.cpu_pct),
+                num(c.cpu_pct_max_process)
+            )
+        })
+        .collect();
+    let json = format!(
+        "{{\"machine\": \"{}\", \"rate_hz\": {rate}, \"seconds_per_case\": {secs}, \"cases\": [{}]}}",
+        m.replace('"', "'"),
+        cases_json.join(", ")
+    );
+    for (name, text) in [("bench.md", &md), ("bench.json", &json)] {
+        let p = out.join(name);
+        std::fs::write(&p, text)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))
+            .runtime_err()?;
+    }
+    let series: Vec<Series> = cases
+        .iter()
+        .map(|c| Series {
+            name: c.case.clone(),
+            points: vec![(50.0, c.p50), (90.0, c.p90), (99.0, c.p99), (99.9, c.p999)],
+            mark: Mark::LinePoints,
+        })
+        .collect();
+    for ext in ["svg", "png"] {
+        taxel_plot::write(
+            &out.join(format!("latency.{ext}")),
+            &Chart {
+                title: format!("one-way latency percentiles at {rate} Hz"),
+                x_label: "percentile".into(),
+                y_label: "latency (us)".into(),
+                series: series.clone(),
+                x_range: Some((45.0, 100.5)),
+                y_range: None,
+            },
+        )
+        .runtime_err()?;
+    }
+    Ok((md, json))
+}
+
+fn machine() -> String {
+    let model = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|c| {
+            c.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|m| m.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    let kernel = std::fs::read_to_string("/proc/sys/kernel/osrelease")
+        .map(|k| k.trim().to_string())
+        .unwrap_or_default();
+    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    format!("{model}, {cores} cores, Linux {kernel}")
+}
