@@ -160,4 +160,34 @@ fn python_package_reads_recordings_and_streams_live() {
 
     p.stop(&[s0, c0, e0, c1]);
     p.assert_released(limit);
+
+    // The bench case: a Python subscriber beside the Rust control loop on one force stream.
+    let py_s = py.display().to_string();
+    let out = p.arg("bench");
+    let (code, stdout, err) = p.run(&[
+        "bench",
+        "--cases",
+        "python_subscriber_event",
+        "--seconds",
+        "1",
+        "--json",
+        "--python",
+        &py_s,
+        "--out",
+        &out,
+    ]);
+    assert_eq!(code, 0, "bench failed:\n{stdout}\n{err}");
+    println!("{stdout}");
+    for case in [
+        "\"python_subscriber_event\"",
+        "\"python_subscriber_event_rust_control\"",
+    ] {
+        let at = stdout
+            .find(&format!("\"case\": {case}"))
+            .unwrap_or_else(|| panic!("{case} missing: {stdout}"));
+        let obj = &stdout[at..at + stdout[at..].find('}').expect("end of case")];
+        assert!(obj.contains("\"dropped\": 0"), "{obj}");
+        assert!(!obj.contains("\"received\": 0"), "{obj}");
+        assert!(!obj.contains("\"p99_us\": null"), "{obj}");
+    }
 }
