@@ -17,7 +17,11 @@ use crate::{bad, taxel_err};
 
 /// One column of a stream.
 enum Col {
-    Sensor(Vec<String>),
+    /// Sensor ids as indices into the names seen, in order of first appearance.
+    Sensor {
+        codes: Vec<u16>,
+        names: Vec<String>,
+    },
     U64(Vec<u64>),
     U32(Vec<u32>),
     U16(Vec<u16>),
@@ -72,8 +76,21 @@ macro_rules! scalar {
 
 impl Visitor for Columns {
     fn sensor(&mut self, f: &Field, v: &mut SensorIdBytes) {
-        if let Col::Sensor(c) = self.col(f, || Col::Sensor(Vec::new())) {
-            c.push(sensor_id_str(v).to_string());
+        let make = || Col::Sensor {
+            codes: Vec::new(),
+            names: Vec::new(),
+        };
+        if let Col::Sensor { codes, names } = self.col(f, make) {
+            let id = sensor_id_str(v);
+            // Files hold one sensor or a few: the last one seen is the usual match.
+            let code = match codes.last() {
+                Some(&c) if names[c as usize] == id => c as usize,
+                _ => names.iter().position(|n| n == id).unwrap_or_else(|| {
+                    names.push(id.to_string());
+                    names.len() - 1
+                }),
+            };
+            codes.push(code as u16);
         }
     }
     scalar!(u64, u64, U64);
@@ -214,7 +231,10 @@ fn stream_dict<'py>(py: Python<'py>, c: Columns) -> PyResult<Bound<'py, PyDict>>
     let n = c.rows;
     for (name, col) in c.names.into_iter().zip(c.cols) {
         let obj: Bound<'py, PyAny> = match col {
-            Col::Sensor(v) => PyList::new(py, v)?.into_any(),
+            // (codes, names): the Python layer makes the array of ids from them.
+            Col::Sensor { codes, names } => (codes.into_pyarray(py), PyList::new(py, names)?)
+                .into_pyobject(py)?
+                .into_any(),
             Col::U64(v) => v.into_pyarray(py).into_any(),
             Col::U32(v) => v.into_pyarray(py).into_any(),
             Col::U16(v) => v.into_pyarray(py).into_any(),

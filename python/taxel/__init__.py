@@ -62,6 +62,14 @@ def _f64(a):
     return np.ascontiguousarray(a, dtype=np.float64)
 
 
+def _column(v):
+    # Sensor ids come as (codes, names): an object array of the ids.
+    if isinstance(v, tuple):
+        codes, names = v
+        return np.array(names, dtype=object)[codes]
+    return v
+
+
 class Recording:
     """A recording's streams: ``rec["force"]`` is a dict of NumPy columns, one per field of the
     stream's message (docs/messages.md); node arrays are (n, rows, cols). ``kind`` is
@@ -72,9 +80,7 @@ class Recording:
         self.kind = kind
         self.streams = {}
         for name, cols in streams.items():
-            self.streams[name] = {
-                k: (np.asarray(v) if isinstance(v, list) else v) for k, v in cols.items()
-            }
+            self.streams[name] = {k: _column(v) for k, v in cols.items()}
 
     def __getitem__(self, stream):
         try:

@@ -159,7 +159,9 @@ class CtrlC(unittest.TestCase):
     def test_sigint_ends_a_waiting_iteration_cleanly(self):
         needs_pipeline()
         script = textwrap.dedent(f"""
-            import sys, taxel
+            import signal, sys, taxel
+            # As in a terminal, even when this test runs in the background (SIGINT ignored).
+            signal.signal(signal.SIGINT, signal.default_int_handler)
             sub = taxel.subscribe("nobody", prefix={PREFIX!r}, wake=sys.argv[1])
             print("waiting", flush=True)
             try:
