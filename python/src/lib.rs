@@ -11,6 +11,7 @@
 mod live;
 mod offline;
 mod recording;
+mod samples;
 
 use pyo3::prelude::*;
 
