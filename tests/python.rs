@@ -1,5 +1,5 @@
 //! The Python bindings (python/, issue 22) from `cargo test`: a virtual environment under
-//! target/ (made once, with maturin and NumPy from the package index, then reused), the
+//! target/ (made once, with maturin, NumPy and pandas from the package index, then reused), the
 //! package installed into it from ./python with pip (maturin builds the extension with the
 //! release profile, in this workspace's target directory, so a warm build only relinks), and
 //! the Python tests in python/tests run with `python -m unittest` against a demo recording
@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 use taxel_testkit::pipeline;
 
 /// The set-up is redone when this changes (what the environment holds).
-const SETUP: &str = "maturin>=1.9.4,<2 numpy";
+const SETUP: &str = "maturin>=1.9.4,<2 numpy pandas";
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
