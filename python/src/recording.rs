@@ -195,11 +195,8 @@ fn read_taxrec(py: Python<'_>, path: &Path, sensor: Option<&str>) -> PyResult<St
 
 fn read_mcap(py: Python<'_>, path: &Path, sensor: Option<&str>) -> PyResult<Streams> {
     py.detach(|| {
-        let msgs = taxel_formats::mcap::read_messages(path)?;
         let mut streams = Streams::default();
-        for m in msgs {
-            streams.add(m.record, sensor);
-        }
+        taxel_formats::mcap::for_each(path, |m| streams.add(m.record, sensor))?;
         Ok::<_, taxel_formats::mcap::McapError>(streams)
     })
     .map_err(taxel_err)
