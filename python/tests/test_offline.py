@@ -52,6 +52,29 @@ class Recordings(unittest.TestCase):
         np.testing.assert_allclose(c["raw"]["counts"], raw["counts"], rtol=1e-6)
         self.assertIn("force_n", c["reference"])
 
+    def test_a_record_file_cut_short_reads_to_the_cut_with_a_warning(self):
+        with open(path("demo.taxrec"), "rb") as f:
+            data = f.read()
+        cut = path("cut.taxrec")
+        with open(cut, "wb") as f:
+            f.write(data[: len(data) * 2 // 3])
+        with self.assertWarns(UserWarning) as w:
+            rec = taxel.read_recording(cut)
+        self.assertIn("cut short at record", str(w.warning))
+        n = len(rec["raw"]["seq"])
+        self.assertTrue(0 < n < len(self.rec["raw"]["seq"]))
+        np.testing.assert_array_equal(rec["raw"]["counts"], self.rec["raw"]["counts"][:n])
+        # Damage inside the file is an error naming where.
+        bad = bytearray(data)
+        at = len(bad) // 2
+        bad[at:at + 64] = bytes(64)
+        damaged = path("damaged.taxrec")
+        with open(damaged, "wb") as f:
+            f.write(bad)
+        with self.assertRaises(taxel.TaxelError) as e:
+            taxel.read_recording(damaged)
+        self.assertIn("damaged.taxrec: damaged at record", str(e.exception))
+
     def test_sensor_filter_and_pandas(self):
         with self.assertRaises(taxel.TaxelError) as e:
             taxel.read_recording(path("demo.taxrec"), sensor="nobody")
