@@ -86,6 +86,15 @@ fn wait<T: Payload>(
     out: &mut VecDeque<Item>,
 ) -> Result<(), IpcError> {
     let left = || until.saturating_duration_since(Instant::now());
+    if left().is_zero() {
+        // No time to wait: only what is there now.
+        let t = now_ns();
+        sub.poll_each(|v| {
+            out.push_back(v.item(t));
+            Ok(())
+        })?;
+        return Ok(());
+    }
     match mode {
         WakeMode::Event => {
             let t = now_ns();
@@ -198,6 +207,8 @@ impl Subscription {
             Some(t) => Some(Instant::now() + Duration::from_secs_f64(t)),
             None => None,
         };
+        // A deadline already passed (a timeout of 0, `poll`) still takes what is waiting.
+        let mut looked = false;
         loop {
             let Some(w) = self.waiter.as_mut() else {
                 return Err(bad(format!(
@@ -209,9 +220,10 @@ impl Subscription {
                 return item.into_py(py).map(Some);
             }
             let now = Instant::now();
-            if deadline.is_some_and(|d| now >= d) {
+            if looked && deadline.is_some_and(|d| now >= d) {
                 return Ok(None);
             }
+            looked = true;
             let slice = now + TICK;
             let until = deadline.map_or(slice, |d| d.min(slice));
             let w = OnThisThread(w);

@@ -142,6 +142,20 @@ class PythonPublisher(unittest.TestCase):
         flags = np.array([got[i].flags.bits for i in range(len(frames))], np.uint32)
         np.testing.assert_array_equal(flags, offline["flags"])
 
+    def test_poll_takes_what_waits_in_every_wake_mode(self):
+        for i, wake in enumerate(("event", "busy", "adaptive")):
+            sensor = f"pyq{i}"
+            with taxel.subscribe(sensor, stream="raw", prefix=PREFIX, wake=wake) as sub, \
+                    taxel.Publisher(sensor, prefix=PREFIX) as pub:
+                self.assertEqual(sub.poll(), [])
+                for k in range(3):
+                    pub.publish(np.full((2, 3), k, np.float32), t_capture_ns=taxel.now_ns())
+                got = sub.poll()
+                self.assertEqual([s.seq for s in got], [0, 1, 2], wake)
+                self.assertEqual(got[2].counts.tolist(), [[2.0] * 3] * 2)
+                self.assertEqual(got[0].source, 4)
+                self.assertEqual(sub.poll(limit=1), [])
+
     def test_bad_frames(self):
         with taxel.Publisher("py1", prefix=PREFIX) as pub:
             with self.assertRaises(taxel.TaxelError):
