@@ -137,7 +137,10 @@ impl Message for RawFrame {
             flags,
         );
         v.u32(
-            &field("source", "source kind: 1 sim, 2 serial, 3 replay"),
+            &field(
+                "source",
+                "source kind: 1 sim, 2 serial, 3 replay, 4 external (Python)",
+            ),
             source,
         );
         v.f32(

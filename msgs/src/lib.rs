@@ -70,6 +70,8 @@ pub mod source {
     pub const SERIAL: u32 = 2;
     /// A recording played back.
     pub const REPLAY: u32 = 3;
+    /// An external program, through the Python bindings' `taxel.Publisher`.
+    pub const EXTERNAL: u32 = 4;
 }
 
 /// Bits of `RawFrame::flags`.

@@ -6,6 +6,7 @@
 //! from the running executable, so this library only works inside the `taxel` launcher.
 
 pub mod peers;
+mod python;
 mod report;
 
 use std::io::Read;
@@ -37,6 +38,10 @@ pub struct Args {
     /// default: all).
     #[arg(long, value_delimiter = ',')]
     pub cases: Vec<String>,
+    /// The Python with the taxel package installed, for `python_subscriber_event` (skipped in
+    /// a run of every case when it cannot import taxel).
+    #[arg(long, env = "TAXEL_PYTHON", default_value = "python3")]
+    pub python: String,
 }
 
 /// One case's measurement.
@@ -691,9 +696,13 @@ fn run(a: Args) -> Result<(), Failure> {
     if let Some(bad) = a
         .cases
         .iter()
-        .find(|c| !steps.iter().any(|(name, _)| name == c))
+        .find(|c| *c != python::CASE && !steps.iter().any(|(name, _)| name == c))
     {
-        let known: Vec<&str> = steps.iter().map(|(name, _)| *name).collect();
+        let known: Vec<&str> = steps
+            .iter()
+            .map(|(name, _)| *name)
+            .chain([python::CASE])
+            .collect();
         return Err(Failure::config(anyhow::anyhow!(
             "--cases: unknown case {bad:?} (known: {})",
             known.join(", ")
@@ -709,6 +718,22 @@ fn run(a: Args) -> Result<(), Failure> {
             c.rate_hz = rate;
         }
         cases.push(c);
+    }
+    let want_python = a.cases.iter().any(|c| c == python::CASE);
+    if a.cases.is_empty() || want_python {
+        match python::unavailable(&a.python) {
+            Some(why) if !want_python => {
+                eprintln!("taxel bench: {} skipped: {why}", python::CASE)
+            }
+            _ => {
+                eprintln!("taxel bench: {} ({secs} s at {rate} Hz) ...", python::CASE);
+                let found = python::case(&a.python, secs, rate, steps.len(), &cal_s);
+                for mut c in found.runtime_err()? {
+                    c.rate_hz = rate;
+                    cases.push(c);
+                }
+            }
+        }
     }
     let (md, json) = report::write(&out, rate, secs, &cases)?;
     if a.json {

@@ -174,6 +174,20 @@ pub fn read_messages(path: &Path) -> Result<Vec<McapMessage>, McapError> {
     parse_messages(path, &bytes)
 }
 
+/// Like [`read_messages`], but hands each message to `f` as it is decoded instead of keeping
+/// them all (a long recording's raw frames would take gigabytes).
+pub fn for_each(path: &Path, f: impl FnMut(McapMessage)) -> Result<(), McapError> {
+    let bytes = std::fs::read(path).map_err(|error| McapError::Io {
+        path: path.to_path_buf(),
+        error,
+    })?;
+    let mut f = f;
+    for_each_message(path, &bytes, |m| {
+        f(m);
+        Ok(())
+    })
+}
+
 /// [`read_messages`] on bytes already read from `path`.
 fn parse_messages(path: &Path, bytes: &[u8]) -> Result<Vec<McapMessage>, McapError> {
     let mut out = Vec::new();

@@ -194,94 +194,143 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
         }
         WakeMode::Adaptive => {
             fine_timer_slack();
-            let mut rhythm = Rhythm::new();
-            let mut budget = Budget::new(now_ns());
-            let mut stats = AdaptiveStats::default();
-            // Hands every waiting sample to `on_sample`; returns the newest one's sequence
-            // number and capture time, and when it was received.
-            type Newest = Option<((u64, u64), u64)>;
-            let mut poll = || -> Result<Newest, IpcError> {
+            let mut waiter = Adaptive::new();
+            let mut poll = |newest: &mut Newest| {
                 let t = now_ns();
-                let mut newest = None;
                 sub.poll_each(|v| {
-                    newest = Some(stamp(v));
+                    *newest = Some((stamp(v), t));
                     on_sample(v, t)
-                })?;
-                Ok(newest.map(|c| (c, t)))
+                })
+                .map(|_| ())
             };
             while !done(shutdown) {
                 tick(&mut last_tick);
-                // Anything already there?
-                if let Some(((q, c), _)) = poll()? {
-                    rhythm.captured(q, c);
-                    sub.clear_wakeups()?;
-                    continue;
-                }
-                if let Some(plan) = rhythm.plan() {
-                    // Wake early enough for a high quantile of our sleeps to end before the
-                    // sample, but never plan to poll longer than the budget holds: when sleeps
-                    // overshoot a lot (a loaded host), wake later rather than poll longer.
-                    let now = now_ns();
-                    let period = rhythm.period_ns().unwrap_or(0.0);
-                    let affordable = budget.refill(now).min(EARLY_SHARE * SPIN_SHARE * period)
-                        as u64
-                        + plan.usual_overshoot_ns;
-                    let wake = plan.arrival_ns.saturating_sub(plan.lead_ns.min(affordable));
-                    if wake > now {
-                        let until = wake.min(now + tick_every.as_nanos() as u64);
-                        sleep_until(until);
-                        if until < wake {
-                            // A tick is due first; then plan again.
-                            continue;
-                        }
-                        rhythm.slept(now_ns().saturating_sub(wake));
-                    }
-                    let spin_start = now_ns();
-                    let limit = budget
-                        .refill(spin_start)
-                        .min(MAX_POLL_SHARE * period)
-                        .max(MIN_POLL_NS);
-                    let stop = spin_start + limit as u64;
-                    let mut polled = false;
-                    let mut got = None;
-                    loop {
-                        if let Some(x) = poll()? {
-                            got = Some(x);
-                            break;
-                        }
-                        polled = true;
-                        if now_ns() >= stop || done(shutdown) {
-                            break;
-                        }
-                        // Let the producer run on this core if it is waiting for one (two
-                        // pollers must not starve the publisher on a 2-core machine).
-                        std::thread::yield_now();
-                    }
-                    let spent = now_ns().saturating_sub(spin_start);
-                    budget.spend(spent);
-                    stats.spin_ns += spent;
-                    if let Some(((q, c), t)) = got {
-                        rhythm.captured(q, c);
-                        if polled {
-                            // It arrived while we polled: t - c is the true hop.
-                            rhythm.hop(t.saturating_sub(c));
-                            stats.caught += 1;
-                        } else {
-                            stats.waiting += 1;
-                        }
-                        sub.clear_wakeups()?;
-                        continue;
-                    }
-                    stats.fallbacks += 1;
-                }
-                // Not there within the budget, or no rhythm yet: sleep on the event.
-                sub.wait_wakeup(tick_every)?;
-                if let Some(((q, c), _)) = poll()? {
-                    rhythm.captured(q, c);
-                }
+                waiter.step(sub, &mut poll, &|| done(shutdown), tick_every)?;
             }
-            stats.learned = rhythm.learned();
-            Ok(stats)
+            Ok(waiter.finish())
         }
+    }
+}
+
+/// The newest sample a poll handed on: its (sequence number, capture time) and when it was
+/// received (ns), or None when no sample waited.
+pub type Newest = Option<((u64, u64), u64)>;
+
+/// The adaptive wake-up as a waiter the caller drives (`receive_loop` in adaptive mode, or a
+/// consumer that pulls one sample at a time, such as the Python bindings): each
+/// [`Adaptive::step`] sleeps, polls or waits on the event until samples came, `done` says
+/// stop, or a tick is due. Call [`fine_timer_slack`] once on the waiting thread first.
+#[derive(Debug)]
+pub struct Adaptive {
+    rhythm: Rhythm,
+    budget: Budget,
+    stats: AdaptiveStats,
+}
+
+impl Default for Adaptive {
+    fn default() -> Self {
+        Adaptive::new()
+    }
+}
+
+impl Adaptive {
+    pub fn new() -> Adaptive {
+        Adaptive {
+            rhythm: Rhythm::new(),
+            budget: Budget::new(now_ns()),
+            stats: AdaptiveStats::default(),
+        }
+    }
+
+    /// One wait. `poll` hands every waiting sample on and sets its argument to the newest
+    /// one's (sequence number, capture time) and when it was received (untouched when none
+    /// waited). Returns at the latest after `tick_every` (plus one poll budget).
+    pub fn step<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
+        &mut self,
+        sub: &StreamSubscriber<T>,
+        poll: &mut impl FnMut(&mut Newest) -> Result<(), IpcError>,
+        done: &impl Fn() -> bool,
+        tick_every: Duration,
+    ) -> Result<(), IpcError> {
+        let mut poll = || -> Result<Newest, IpcError> {
+            let mut newest = None;
+            poll(&mut newest)?;
+            Ok(newest)
+        };
+        let (rhythm, budget, stats) = (&mut self.rhythm, &mut self.budget, &mut self.stats);
+        // Anything already there?
+        if let Some(((q, c), _)) = poll()? {
+            rhythm.captured(q, c);
+            sub.clear_wakeups()?;
+            return Ok(());
+        }
+        if let Some(plan) = rhythm.plan() {
+            // Wake early enough for a high quantile of our sleeps to end before the sample,
+            // but never plan to poll longer than the budget holds: when sleeps overshoot a lot
+            // (a loaded host), wake later rather than poll longer.
+            let now = now_ns();
+            let period = rhythm.period_ns().unwrap_or(0.0);
+            let affordable = budget.refill(now).min(EARLY_SHARE * SPIN_SHARE * period) as u64
+                + plan.usual_overshoot_ns;
+            let wake = plan.arrival_ns.saturating_sub(plan.lead_ns.min(affordable));
+            if wake > now {
+                let until = wake.min(now + tick_every.as_nanos() as u64);
+                sleep_until(until);
+                if until < wake {
+                    // A tick is due first; then plan again.
+                    return Ok(());
+                }
+                rhythm.slept(now_ns().saturating_sub(wake));
+            }
+            let spin_start = now_ns();
+            let limit = budget
+                .refill(spin_start)
+                .min(MAX_POLL_SHARE * period)
+                .max(MIN_POLL_NS);
+            let stop = spin_start + limit as u64;
+            let mut polled = false;
+            let mut got = None;
+            loop {
+                if let Some(x) = poll()? {
+                    got = Some(x);
+                    break;
+                }
+                polled = true;
+                if now_ns() >= stop || done() {
+                    break;
+                }
+                // Let the producer run on this core if it is waiting for one (two pollers must
+                // not starve the publisher on a 2-core machine).
+                std::thread::yield_now();
+            }
+            let spent = now_ns().saturating_sub(spin_start);
+            budget.spend(spent);
+            stats.spin_ns += spent;
+            if let Some(((q, c), t)) = got {
+                rhythm.captured(q, c);
+                if polled {
+                    // It arrived while we polled: t - c is the true hop.
+                    rhythm.hop(t.saturating_sub(c));
+                    stats.caught += 1;
+                } else {
+                    stats.waiting += 1;
+                }
+                sub.clear_wakeups()?;
+                return Ok(());
+            }
+            stats.fallbacks += 1;
+        }
+        // Not there within the budget, or no rhythm yet: sleep on the event.
+        sub.wait_wakeup(tick_every)?;
+        if let Some(((q, c), _)) = poll()? {
+            rhythm.captured(q, c);
+        }
+        Ok(())
+    }
+
+    /// What the waiter learned and spent.
+    pub fn finish(mut self) -> AdaptiveStats {
+        self.stats.learned = self.rhythm.learned();
+        self.stats
     }
 }
