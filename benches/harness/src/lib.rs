@@ -501,6 +501,52 @@ fn run(a: Args) -> Result<(), Failure> {
     if !(secs.is_finite() && (0.2..=3600.0).contains(&secs)) {
         return bad("--seconds must be 0.2..=3600");
     }
+    let (out, cal_s, dynamic_s) = prepare_out(&a)?;
+    let rate = a.rate_hz;
+    let mut cases = Vec::new();
+    let steps = cases_table(secs, rate, &cal_s, &dynamic_s);
+    if let Some(bad) = a
+        .cases
+        .iter()
+        .find(|c| *c != python::CASE && !steps.iter().any(|(name, _)| name == c))
+    {
+        let known: Vec<&str> = steps
+            .iter()
+            .map(|(name, _)| *name)
+            .chain([python::CASE])
+            .collect();
+        return Err(Failure::config(anyhow::anyhow!(
+            "--cases: unknown case {bad:?} (known: {})",
+            known.join(", ")
+        )));
+    }
+    for (i, (name, f)) in steps.iter().enumerate() {
+        if !a.cases.is_empty() && !a.cases.iter().any(|c| c == name) {
+            continue;
+        }
+        eprintln!("taxel bench: {name} ({secs} s at {rate} Hz) ...");
+        let mut c = f(i).runtime_err()?;
+        if c.rate_hz == 0.0 {
+            c.rate_hz = rate;
+        }
+        cases.push(c);
+    }
+    run_python(&a, secs, rate, steps.len(), &cal_s, &mut cases)?;
+    let (md, json) = report::write(&out, rate, secs, &cases)?;
+    if a.json {
+        println!("{json}");
+    } else {
+        println!("{md}\nwritten to {}", out.display());
+    }
+    Ok(())
+}
+
+type Case = Box<dyn Fn(usize) -> anyhow::Result<CaseResult>>;
+
+/// The output directory (named, or a fresh one under the temp dir, said on stderr) with the
+/// two calibrations the force-path cases serve: the shipped one, and the same with every
+/// dynamic term on.
+fn prepare_out(a: &Args) -> Result<(PathBuf, String, String), Failure> {
     let out = match &a.out {
         Some(d) => d.clone(),
         None => std::env::temp_dir().join(format!("taxel-bench-{}", std::process::id())),
@@ -518,7 +564,6 @@ fn run(a: Args) -> Result<(), Failure> {
     std::fs::write(&cal, include_str!("../../../calibrations/sim-default.toml"))
         .map_err(|e| anyhow::anyhow!("{}: {e}", cal.display()))
         .config_err()?;
-    let cal_s = cal.display().to_string();
     // The same calibration with every dynamic term on both blocks (bounded force creep of five
     // time constants, six plays): the force path with the terms, beside the static one.
     let dynamic = out.join("bench-calibration-dynamic.toml");
@@ -528,11 +573,18 @@ fn run(a: Args) -> Result<(), Failure> {
     )
     .map_err(|e| anyhow::anyhow!("{}: {e}", dynamic.display()))
     .config_err()?;
-    let dynamic_s = dynamic.display().to_string();
-    let rate = a.rate_hz;
-    let mut cases = Vec::new();
-    type Case = Box<dyn Fn(usize) -> anyhow::Result<CaseResult>>;
-    let steps: Vec<(&str, Case)> = vec![
+    Ok((
+        out,
+        cal.display().to_string(),
+        dynamic.display().to_string(),
+    ))
+}
+
+/// Every case but the Python one, in the order they run: a name and what runs it (given the
+/// case's index, which keeps each case's service names apart).
+fn cases_table(secs: f64, rate: f64, cal_s: &str, dynamic_s: &str) -> Vec<(&'static str, Case)> {
+    let (cal_s, dynamic_s) = (cal_s.to_string(), dynamic_s.to_string());
+    vec![
         (
             "iox2_busy_1hop",
             Box::new(move |n| iox2("iox2_busy_1hop", "busy", secs, rate, n)),
@@ -627,55 +679,7 @@ fn run(a: Args) -> Result<(), Failure> {
             "max_rate_zero_loss",
             Box::new({
                 let c = cal_s.clone();
-                move |n| {
-                    // One run at rate `r`: the result, and what it missed if it lost frames
-                    // (or received under half of what was sent).
-                    let at = |r: f64, k: usize| -> anyhow::Result<(CaseResult, Option<String>)> {
-                        let mut res = force_path(
-                            "max_rate_zero_loss",
-                            "event",
-                            secs.min(3.0),
-                            r,
-                            100 + n * 10 + k,
-                            &c,
-                        )?;
-                        res.rate_hz = r;
-                        let expected = r * secs.min(3.0);
-                        let miss =
-                            (res.dropped != 0.0 || res.received <= 0.5 * expected).then(|| {
-                                format!(
-                                    "{} dropped, {} of about {expected:.0} received",
-                                    res.dropped, res.received
-                                )
-                            });
-                        Ok((res, miss))
-                    };
-                    // 1 kHz gets three tries: on a loaded machine one short run can lose its
-                    // start to process start-up (a measurement, not a verdict).
-                    let mut best = None;
-                    let mut last_miss = String::new();
-                    for k in 0..3 {
-                        match at(1000.0, k)? {
-                            (res, None) => {
-                                best = Some(res);
-                                break;
-                            }
-                            (_, Some(m)) => last_miss = m,
-                        }
-                    }
-                    let Some(mut best) = best else {
-                        anyhow::bail!(
-                            "lost frames even at 1 kHz in three tries (last: {last_miss})"
-                        );
-                    };
-                    for (k, r) in [2000.0, 5000.0, 10000.0, 20000.0].into_iter().enumerate() {
-                        match at(r, 3 + k)? {
-                            (res, None) => best = res,
-                            (_, Some(_)) => break,
-                        }
-                    }
-                    Ok(best)
-                }
+                move |n| max_rate_zero_loss(secs, n, &c)
             }),
         ),
         (
@@ -692,33 +696,68 @@ fn run(a: Args) -> Result<(), Failure> {
                 move |n| many("skin_16_sensors", 16, secs, rate, n, &c)
             }),
         ),
-    ];
-    if let Some(bad) = a
-        .cases
-        .iter()
-        .find(|c| *c != python::CASE && !steps.iter().any(|(name, _)| name == c))
-    {
-        let known: Vec<&str> = steps
-            .iter()
-            .map(|(name, _)| *name)
-            .chain([python::CASE])
-            .collect();
-        return Err(Failure::config(anyhow::anyhow!(
-            "--cases: unknown case {bad:?} (known: {})",
-            known.join(", ")
-        )));
-    }
-    for (i, (name, f)) in steps.iter().enumerate() {
-        if !a.cases.is_empty() && !a.cases.iter().any(|c| c == name) {
-            continue;
+    ]
+}
+
+/// `max_rate_zero_loss`: the force path at 1 kHz (three tries), then at doubling rates while
+/// nothing is lost; the fastest rate without a loss.
+fn max_rate_zero_loss(secs: f64, n: usize, c: &str) -> anyhow::Result<CaseResult> {
+    // One run at rate `r`: the result, and what it missed if it lost frames
+    // (or received under half of what was sent).
+    let at = |r: f64, k: usize| -> anyhow::Result<(CaseResult, Option<String>)> {
+        let mut res = force_path(
+            "max_rate_zero_loss",
+            "event",
+            secs.min(3.0),
+            r,
+            100 + n * 10 + k,
+            c,
+        )?;
+        res.rate_hz = r;
+        let expected = r * secs.min(3.0);
+        let miss = (res.dropped != 0.0 || res.received <= 0.5 * expected).then(|| {
+            format!(
+                "{} dropped, {} of about {expected:.0} received",
+                res.dropped, res.received
+            )
+        });
+        Ok((res, miss))
+    };
+    // 1 kHz gets three tries: on a loaded machine one short run can lose its
+    // start to process start-up (a measurement, not a verdict).
+    let mut best = None;
+    let mut last_miss = String::new();
+    for k in 0..3 {
+        match at(1000.0, k)? {
+            (res, None) => {
+                best = Some(res);
+                break;
+            }
+            (_, Some(m)) => last_miss = m,
         }
-        eprintln!("taxel bench: {name} ({secs} s at {rate} Hz) ...");
-        let mut c = f(i).runtime_err()?;
-        if c.rate_hz == 0.0 {
-            c.rate_hz = rate;
-        }
-        cases.push(c);
     }
+    let Some(mut best) = best else {
+        anyhow::bail!("lost frames even at 1 kHz in three tries (last: {last_miss})");
+    };
+    for (k, r) in [2000.0, 5000.0, 10000.0, 20000.0].into_iter().enumerate() {
+        match at(r, 3 + k)? {
+            (res, None) => best = res,
+            (_, Some(_)) => break,
+        }
+    }
+    Ok(best)
+}
+
+/// The Python case, when asked for or (on a run of every case) when that Python can import
+/// taxel; said on stderr when skipped.
+fn run_python(
+    a: &Args,
+    secs: f64,
+    rate: f64,
+    index: usize,
+    cal_s: &str,
+    cases: &mut Vec<CaseResult>,
+) -> Result<(), Failure> {
     let want_python = a.cases.iter().any(|c| c == python::CASE);
     if a.cases.is_empty() || want_python {
         match python::unavailable(&a.python) {
@@ -727,19 +766,13 @@ fn run(a: Args) -> Result<(), Failure> {
             }
             _ => {
                 eprintln!("taxel bench: {} ({secs} s at {rate} Hz) ...", python::CASE);
-                let found = python::case(&a.python, secs, rate, steps.len(), &cal_s);
+                let found = python::case(&a.python, secs, rate, index, cal_s);
                 for mut c in found.runtime_err()? {
                     c.rate_hz = rate;
                     cases.push(c);
                 }
             }
         }
-    }
-    let (md, json) = report::write(&out, rate, secs, &cases)?;
-    if a.json {
-        println!("{json}");
-    } else {
-        println!("{md}\nwritten to {}", out.display());
     }
     Ok(())
 }
