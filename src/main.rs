@@ -3,9 +3,8 @@
 //! everything; `demo`, `up` and `soak` run a pipeline under the supervisor (taxel-supervisor),
 //! `bench` is the latency harness (taxel-bench), `simcheck` the sim-vs-recording analysis
 //! (taxel-simcheck) and `evaluate` (with `calibrator eval`) the offline evaluation
-//! (taxel-evaluation). Each command maps
-//! its result to the exit code itself (taxel-runtime's `exit_code`: 0 done, 1 runtime
-//! failure, 2 bad input).
+//! (taxel-evaluation). Each command maps its result to the exit code itself (taxel-runtime's
+//! `exit_code`: 0 done, 1 runtime failure, 2 bad input).
 
 use std::process::ExitCode;
 
