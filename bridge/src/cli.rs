@@ -24,9 +24,15 @@ pub struct Args {
     /// `?` one character. E.g. 'taxel/glove0/*' or 'taxel/*/force'.
     #[arg(long)]
     pub allow: Vec<String>,
-    /// Zenoh endpoint to listen on, repeatable, e.g. tcp/0.0.0.0:7447.
+    /// Zenoh endpoint to listen on, repeatable, e.g. tcp/127.0.0.1:7447. Loopback only
+    /// (nothing authenticates or encrypts yet) unless --insecure-listen.
     #[arg(long)]
     pub listen: Vec<String>,
+    /// Listen on addresses other than loopback (tcp/0.0.0.0:7447, a LAN address) although the
+    /// link is neither authenticated nor encrypted: anyone who reaches the port can read and
+    /// inject the allowed streams.
+    #[arg(long)]
+    pub insecure_listen: bool,
     /// Zenoh endpoint of a peer bridge to connect to, repeatable, e.g. tcp/glove-pc:7447.
     #[arg(long)]
     pub connect: Vec<String>,
@@ -62,6 +68,7 @@ impl Args {
             zenoh_file: self.zenoh_config.clone(),
             report_every: seconds("report-s", self.report_s)?,
             run_for: self.seconds.map(|s| seconds("seconds", s)).transpose()?,
+            insecure_listen: self.insecure_listen,
         };
         cfg.validate().config_err()?;
         Ok(cfg)
@@ -85,6 +92,16 @@ pub fn main(args: Args) -> ExitCode {
 fn main_inner(args: &Args) -> Result<(), Failure> {
     let cfg = args.config()?;
     tracing::info!("effective configuration: {cfg:?}");
+    if cfg.insecure_listen {
+        tracing::warn!(
+            "--insecure-listen: listening without authentication or encryption; anyone who reaches {:?} can read and inject the allowed streams",
+            cfg.listen
+        );
+    } else if !cfg.listen.is_empty() || cfg.zenoh_file.is_some() {
+        tracing::info!(
+            "listening on loopback only (no TLS yet; --insecure-listen to listen on a network)"
+        );
+    }
     let shutdown = Shutdown::install().runtime_err()?;
     let report = match run(&cfg, &shutdown) {
         Ok(r) => r,

@@ -30,6 +30,8 @@ pub enum ConfigError {
     Prefix(String, String),
     #[error("--{0} {1}: must be a positive number of seconds")]
     Seconds(&'static str, f64),
+    #[error("{0} {1:?}: not a loopback address, and the bridge has no TLS yet, so anyone who reaches it could read and inject streams; listen on 127.0.0.1 or [::1], or add --insecure-listen to listen there anyway")]
+    OpenListen(String, String),
 }
 
 /// A validated bridge configuration.
@@ -49,6 +51,9 @@ pub struct BridgeConfig {
     pub report_every: Duration,
     /// Stop after this long (None: until shutdown).
     pub run_for: Option<Duration>,
+    /// Listen on addresses other than loopback although nothing authenticates or encrypts
+    /// (`--insecure-listen`).
+    pub insecure_listen: bool,
 }
 
 /// How often the link looks for new and vanished services on both sides.
@@ -84,11 +89,37 @@ impl BridgeConfig {
         if self.listen.is_empty() && self.connect.is_empty() && self.zenoh_file.is_none() {
             return Err(ConfigError::NoEndpoint);
         }
+        self.check_listen_on_loopback()?;
         taxel_runtime::ipc::config(&self.prefix)
             .map_err(|e| ConfigError::Prefix(self.prefix.clone(), e.detail))?;
         let s = self.report_every.as_secs_f64();
         if s <= 0.0 {
             return Err(ConfigError::Seconds("report-s", s));
+        }
+        Ok(())
+    }
+
+    /// Without TLS the bridge listens on loopback only, unless `--insecure-listen`: every
+    /// `--listen` endpoint, and every endpoint a `--zenoh-config` file listens on (Zenoh's
+    /// default when the file names none is every interface).
+    fn check_listen_on_loopback(&self) -> Result<(), ConfigError> {
+        if self.insecure_listen {
+            return Ok(());
+        }
+        for e in &self.listen {
+            if !endpoint_is_loopback(e) {
+                return Err(ConfigError::OpenListen("--listen".into(), e.clone()));
+            }
+        }
+        if let Some(p) = &self.zenoh_file {
+            let c = self.zenoh()?;
+            let what = format!("--zenoh-config {}: listen endpoint", p.display());
+            let json = c.get_json("listen/endpoints").unwrap_or_default();
+            for e in endpoints_in(&json) {
+                if !endpoint_is_loopback(&e) {
+                    return Err(ConfigError::OpenListen(what, e));
+                }
+            }
         }
         Ok(())
     }
@@ -181,6 +212,38 @@ fn check_endpoint(e: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// Whether a `tcp/HOST:PORT` endpoint listens on loopback only: `localhost`, 127.0.0.0/8 or
+/// `[::1]`.
+fn endpoint_is_loopback(e: &str) -> bool {
+    let addr = e.strip_prefix("tcp/").unwrap_or(e);
+    let addr = addr.split('#').next().unwrap_or(addr);
+    let Some((host, _port)) = addr.rsplit_once(':') else {
+        return false;
+    };
+    let host = host.trim_start_matches('[').trim_end_matches(']');
+    host.eq_ignore_ascii_case("localhost")
+        || host
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
+}
+
+/// Every endpoint string (`proto/address`) in a JSON value: a list, or Zenoh's values per mode.
+fn endpoints_in(json: &str) -> Vec<String> {
+    fn walk(v: &serde_json::Value, out: &mut Vec<String>) {
+        match v {
+            serde_json::Value::String(s) if s.contains('/') => out.push(s.clone()),
+            serde_json::Value::Array(a) => a.iter().for_each(|x| walk(x, out)),
+            serde_json::Value::Object(m) => m.values().for_each(|x| walk(x, out)),
+            _ => {}
+        }
+    }
+    let mut out = Vec::new();
+    if let Ok(v) = serde_json::from_str::<serde_json::Value>(json) {
+        walk(&v, &mut out);
+    }
+    out
+}
+
 /// Makes taxel's stream settings (runtime/src/ipc.rs) the defaults, so a mirror the link
 /// creates accepts taxel processes opening it: buffer, subscribers, publishers, nodes, safe
 /// overflow, and the largest buffer and history of any stream (a process may ask for less).
@@ -216,6 +279,7 @@ mod tests {
             zenoh_file: None,
             report_every: Duration::from_secs(5),
             run_for: None,
+            insecure_listen: false,
         }
     }
 
@@ -274,6 +338,63 @@ mod tests {
         c.connect = vec!["tcp/[::1]:7447".into(), "tcp/glove-pc.local:7447".into()];
         c.validate().expect("valid endpoints");
         c.zenoh().expect("zenoh accepts the endpoints");
+    }
+
+    #[test]
+    fn without_tls_only_loopback_is_listened_on_unless_insecure() {
+        for ok in [
+            "tcp/127.0.0.1:7447",
+            "tcp/127.3.2.1:1",
+            "tcp/[::1]:7447",
+            "tcp/localhost:7447",
+        ] {
+            let mut c = cfg();
+            c.listen = vec![ok.into()];
+            c.validate().unwrap_or_else(|e| panic!("{ok}: {e}"));
+        }
+        for open in [
+            "tcp/0.0.0.0:7447",
+            "tcp/[::]:7447",
+            "tcp/192.168.1.4:7447",
+            "tcp/glove-pc:7447",
+        ] {
+            let mut c = cfg();
+            c.listen = vec![open.into()];
+            let e = c.validate().expect_err("refused").to_string();
+            assert!(
+                e.starts_with("--listen") && e.contains("--insecure-listen"),
+                "{open}: {e}"
+            );
+            c.insecure_listen = true;
+            c.validate()
+                .unwrap_or_else(|e| panic!("{open} with --insecure-listen: {e}"));
+        }
+        // Connecting out is not listening.
+        let mut c = cfg();
+        c.connect = vec!["tcp/192.168.1.4:7447".into()];
+        c.validate().expect("connect to any host");
+        // A Zenoh file: the endpoints it listens on, or Zenoh's default (every interface).
+        let dir = tempfile::tempdir().expect("dir");
+        for (text, open) in [
+            (r#"{ listen: { endpoints: ["tcp/0.0.0.0:7447"] } }"#, true),
+            (r#"{ mode: "peer" }"#, true),
+            (
+                r#"{ listen: { endpoints: ["tcp/127.0.0.1:7447"] } }"#,
+                false,
+            ),
+            (r#"{ listen: { endpoints: [] } }"#, false),
+        ] {
+            let p = dir.path().join("z.json5");
+            std::fs::write(&p, text).expect("write");
+            let mut c = cfg();
+            c.listen.clear();
+            c.zenoh_file = Some(p);
+            let r = c.validate();
+            assert_eq!(r.is_err(), open, "{text}: {r:?}");
+            if let Err(e) = r {
+                assert!(e.to_string().starts_with("--zenoh-config"), "{e}");
+            }
+        }
     }
 
     #[test]

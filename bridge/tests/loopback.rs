@@ -406,6 +406,11 @@ fn bad_arguments_are_refused_in_one_line() {
             "--connect",
         ),
         (vec!["--allow", "taxel/*"], "--listen, --connect"),
+        // No TLS yet: a network address needs --insecure-listen.
+        (
+            vec!["--allow", "taxel/*", "--listen", "tcp/0.0.0.0:7447"],
+            "--insecure-listen",
+        ),
         (
             vec![
                 "--allow",
