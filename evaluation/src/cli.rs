@@ -36,15 +36,8 @@ pub enum Evaluate {
         /// Output directory (default: a fresh directory under the system temp dir, printed).
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Simulator families (taxel-sim presets), comma separated.
-        #[arg(long, value_delimiter = ',', default_values_t = crate::worlds::FAMILIES.map(String::from))]
-        families: Vec<String>,
-        /// Seeds of each family (default: the hold-out seeds, never tuned on), comma separated.
-        #[arg(long, value_delimiter = ',', default_values_t = crate::worlds::HOLDOUT_SEEDS)]
-        seeds: Vec<u64>,
-        /// Folder holding worldb/ and real/ (skipped with a note when absent).
-        #[arg(long, default_value = "../shared/data")]
-        shared: PathBuf,
+        #[command(flatten)]
+        worlds: WorldSet,
         /// Training epochs of the curvature MLP (the paper: 500).
         #[arg(long, default_value_t = 500)]
         epochs: usize,
@@ -59,16 +52,35 @@ pub enum Evaluate {
         /// Output directory (default: a fresh directory under the system temp dir, printed).
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Simulator families (taxel-sim presets), comma separated.
-        #[arg(long, value_delimiter = ',', default_values_t = crate::worlds::FAMILIES.map(String::from))]
-        families: Vec<String>,
-        /// Seeds of each family (default: the hold-out seeds, never tuned on), comma separated.
-        #[arg(long, value_delimiter = ',', default_values_t = crate::worlds::HOLDOUT_SEEDS)]
-        seeds: Vec<u64>,
-        /// Folder holding worldb/ (skipped with a note when absent).
-        #[arg(long, default_value = "../shared/data")]
-        shared: PathBuf,
+        #[command(flatten)]
+        worlds: WorldSet,
     },
+}
+
+/// Which worlds `worlds` and `dynamics` run on.
+#[derive(Debug, clap::Args)]
+pub struct WorldSet {
+    /// Simulator families (taxel-sim presets), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = crate::worlds::FAMILIES.map(String::from))]
+    families: Vec<String>,
+    /// Seeds of each family (default: the hold-out seeds, never tuned on), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = crate::worlds::HOLDOUT_SEEDS)]
+    seeds: Vec<u64>,
+    /// Folder holding worldb/ and real/ (skipped with a note when absent).
+    #[arg(long, default_value = "../shared/data")]
+    shared: PathBuf,
+}
+
+impl WorldSet {
+    fn options(self, out: PathBuf, epochs: usize) -> crate::worlds::Options {
+        crate::worlds::Options {
+            out,
+            families: self.families,
+            seeds: self.seeds,
+            shared: Some(self.shared),
+            epochs,
+        }
+    }
 }
 
 pub fn main(e: Evaluate) -> ExitCode {
@@ -99,33 +111,11 @@ fn run(e: Evaluate) -> Result<(), Failure> {
         } => table1(out_dir(out, "table1"), seed, curvature_model, build_seed),
         Evaluate::Worlds {
             out,
-            families,
-            seeds,
-            shared,
+            worlds: w,
             epochs,
             json,
-        } => worlds(
-            crate::worlds::Options {
-                out: out_dir(out, "worlds"),
-                families,
-                seeds,
-                shared: Some(shared),
-                epochs,
-            },
-            json,
-        ),
-        Evaluate::Dynamics {
-            out,
-            families,
-            seeds,
-            shared,
-        } => dynamics(crate::worlds::Options {
-            out: out_dir(out, "dynamics"),
-            families,
-            seeds,
-            shared: Some(shared),
-            epochs: 1,
-        }),
+        } => worlds(w.options(out_dir(out, "worlds"), epochs), json),
+        Evaluate::Dynamics { out, worlds: w } => dynamics(w.options(out_dir(out, "dynamics"), 1)),
     }
 }
 
