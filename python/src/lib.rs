@@ -12,6 +12,7 @@ mod live;
 mod offline;
 mod recording;
 mod samples;
+mod thread_bound;
 
 use pyo3::prelude::*;
 

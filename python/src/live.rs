@@ -17,6 +17,7 @@ use taxel_runtime::now_ns;
 use taxel_runtime::wake::{Adaptive, Newest, WakeMode};
 
 use crate::samples::{Curvature, Flags, Force, Item, Raw, ReferenceValue};
+use crate::thread_bound::ThreadBound;
 use crate::{bad, shape_str, taxel_err};
 
 /// A value handed to `Python::detach`, which runs its closure on the calling thread: the value
@@ -180,9 +181,9 @@ impl Waiter {
 
 /// An open subscription: an iterator of samples. Iteration ends after `timeout` seconds
 /// without a sample (never, without a timeout); `next(timeout)` returns None instead.
-#[pyclass(unsendable, module = "taxel._taxel")]
+#[pyclass(module = "taxel._taxel")]
 pub struct Subscription {
-    waiter: Option<Waiter>,
+    ports: ThreadBound<SubscriptionPorts>,
     timeout: Option<f64>,
     #[pyo3(get)]
     sensor: String,
@@ -192,6 +193,11 @@ pub struct Subscription {
     prefix: String,
     #[pyo3(get)]
     wake: &'static str,
+}
+
+/// What a subscription holds on the thread that made it.
+struct SubscriptionPorts {
+    waiter: Option<Waiter>,
     /// Declared after the waiter: the node outlives its ports.
     ipc: Option<Ipc>,
 }
@@ -207,10 +213,12 @@ impl Subscription {
             Some(t) => Some(Instant::now() + Duration::from_secs_f64(t)),
             None => None,
         };
+        let what = || format!("the subscription to taxel/{}/{}", self.sensor, self.stream);
+        let ports = self.ports.get(what)?;
         // A deadline already passed (a timeout of 0, `poll`) still takes what is waiting.
         let mut looked = false;
         loop {
-            let Some(w) = self.waiter.as_mut() else {
+            let Some(w) = ports.waiter.as_mut() else {
                 return Err(bad(format!(
                     "the subscription to taxel/{}/{} is closed",
                     self.sensor, self.stream
@@ -267,9 +275,12 @@ impl Subscription {
     }
 
     /// Closes the subscription (its iceoryx2 node is removed); also on garbage collection.
-    fn close(&mut self) {
-        self.waiter = None;
-        self.ipc = None;
+    fn close(&mut self) -> PyResult<()> {
+        let what = || format!("the subscription to taxel/{}/{}", self.sensor, self.stream);
+        let ports = self.ports.get(what)?;
+        ports.waiter = None;
+        ports.ipc = None;
+        Ok(())
     }
 
     fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
@@ -281,8 +292,8 @@ impl Subscription {
         _t: Option<Bound<'_, PyAny>>,
         _v: Option<Bound<'_, PyAny>>,
         _tb: Option<Bound<'_, PyAny>>,
-    ) {
-        self.close();
+    ) -> PyResult<()> {
+        self.close()
     }
 
     fn __repr__(&self) -> String {
@@ -341,25 +352,27 @@ fn subscribe(
         taxel_runtime::clock::fine_timer_slack();
     }
     Ok(Subscription {
-        waiter: Some(Waiter {
-            sub,
-            mode,
-            adaptive: Adaptive::new(),
-            queue: VecDeque::new(),
+        ports: ThreadBound::new(SubscriptionPorts {
+            waiter: Some(Waiter {
+                sub,
+                mode,
+                adaptive: Adaptive::new(),
+                queue: VecDeque::new(),
+            }),
+            ipc: Some(ipc),
         }),
         timeout,
         sensor: sensor.to_string(),
         stream: s.suffix(),
         prefix,
         wake,
-        ipc: Some(ipc),
     })
 }
 
 /// Sends raw frames on `taxel/<sensor>/raw` from a Python-side source (a lab's own reader).
-#[pyclass(unsendable, module = "taxel._taxel")]
+#[pyclass(module = "taxel._taxel")]
 pub struct Publisher {
-    publisher: Option<StreamPublisher<RawFrame>>,
+    ports: ThreadBound<PublisherPorts>,
     frame: Box<RawFrame>,
     #[pyo3(get)]
     sensor: String,
@@ -368,6 +381,12 @@ pub struct Publisher {
     /// Frames sent so far (the next frame's `seq`).
     #[pyo3(get)]
     sent: u64,
+}
+
+/// What a publisher holds on the thread that made it.
+struct PublisherPorts {
+    publisher: Option<StreamPublisher<RawFrame>>,
+    /// Declared after the port: the node outlives it.
     ipc: Option<Ipc>,
 }
 
@@ -435,12 +454,14 @@ impl Publisher {
             .publisher::<RawFrame>(sensor, Stream::Raw)
             .map_err(taxel_err)?;
         Ok(Publisher {
-            publisher: Some(publisher),
+            ports: ThreadBound::new(PublisherPorts {
+                publisher: Some(publisher),
+                ipc: Some(ipc),
+            }),
             frame,
             sensor: sensor.to_string(),
             prefix,
             sent: 0,
-            ipc: Some(ipc),
         })
     }
 
@@ -453,8 +474,10 @@ impl Publisher {
         counts: PyReadonlyArrayDyn<'_, f32>,
         t_capture_ns: Option<u64>,
     ) -> PyResult<u64> {
-        let Some(publisher) = self.publisher.as_ref() else {
-            return Err(bad(format!("the publisher of {} is closed", self.sensor)));
+        let sensor = &self.sensor;
+        let ports = self.ports.get(|| format!("the publisher of {sensor}"))?;
+        let Some(publisher) = ports.publisher.as_ref() else {
+            return Err(bad(format!("the publisher of {sensor} is closed")));
         };
         let f = &mut self.frame;
         let shape = counts.shape();
@@ -499,9 +522,12 @@ impl Publisher {
     }
 
     /// Closes the publisher (its iceoryx2 node is removed); also on garbage collection.
-    fn close(&mut self) {
-        self.publisher = None;
-        self.ipc = None;
+    fn close(&mut self) -> PyResult<()> {
+        let sensor = &self.sensor;
+        let ports = self.ports.get(|| format!("the publisher of {sensor}"))?;
+        ports.publisher = None;
+        ports.ipc = None;
+        Ok(())
     }
 
     fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
@@ -513,8 +539,8 @@ impl Publisher {
         _t: Option<Bound<'_, PyAny>>,
         _v: Option<Bound<'_, PyAny>>,
         _tb: Option<Bound<'_, PyAny>>,
-    ) {
-        self.close();
+    ) -> PyResult<()> {
+        self.close()
     }
 }
 

@@ -91,6 +91,36 @@ class Streams(unittest.TestCase):
             th.join()
         self.assertGreater(during, 1000)
 
+    def test_another_thread_gets_a_taxel_error(self):
+        errors = []
+
+        def use(obj, *calls):
+            for call in calls:
+                try:
+                    call(obj)
+                    errors.append(None)
+                except taxel.TaxelError as e:
+                    errors.append(str(e))
+
+        sub = taxel.subscribe("nobody", prefix=PREFIX)
+        pub = taxel.Publisher("nobody", prefix=PREFIX, rows=2, cols=2)
+        th = threading.Thread(target=lambda: (
+            use(sub, lambda s: s.next(timeout=0.01), lambda s: s.poll(), lambda s: s.close()),
+            use(pub, lambda p: p.publish(np.zeros((2, 2), np.float32)), lambda p: p.close())))
+        th.start()
+        th.join()
+        self.assertEqual(len(errors), 5)
+        for e in errors:
+            self.assertIsNotNone(e)
+            self.assertIn("used from a thread other than the one that made it", e)
+        self.assertIn("the subscription to taxel/nobody/force", errors[0])
+        self.assertIn("the publisher of nobody", errors[3])
+        # Still usable on the thread that made them.
+        self.assertIsNone(sub.next(timeout=0.01))
+        self.assertEqual(pub.publish(np.zeros((2, 2), np.float32)), 0)
+        sub.close()
+        pub.close()
+
     def test_bad_arguments_raise_the_cli_message(self):
         with self.assertRaises(taxel.TaxelError) as e:
             taxel.subscribe("bad id!", prefix=PREFIX)
