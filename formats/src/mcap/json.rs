@@ -16,6 +16,7 @@ use taxel_msgs::{
     SensorIdBytes, Visitor,
 };
 
+use super::flat::{self, Flat};
 use crate::records::{shape_of, Record};
 
 /// Schema names (the message types of docs/messages.md).
@@ -319,6 +320,18 @@ pub(super) fn decode(
     declared: Option<&[String]>,
     data: &[u8],
 ) -> Result<Record, String> {
+    match decode_flat(schema, declared, data) {
+        Some(r) => Ok(r),
+        None => decode_general(schema, declared, data),
+    }
+}
+
+/// [`decode`] with serde_json: reads what the fast path leaves, and names every error.
+pub(super) fn decode_general(
+    schema: &str,
+    declared: Option<&[String]>,
+    data: &[u8],
+) -> Result<Record, String> {
     let mut obj: Map<String, Value> = serde_json::from_slice(data).map_err(|e| e.to_string())?;
     Ok(match schema {
         RAW_SCHEMA => read::<RawFrame>(&obj, declared)?.into(),
@@ -339,4 +352,36 @@ pub(super) fn decode(
         REFERENCE_SCHEMA => read::<Reference>(&obj, declared)?.into(),
         other => return Err(format!("unknown schema {other:?}")),
     })
+}
+
+/// [`decode`] on the fast path ([`flat`]); `None` when the general path must decide.
+pub(super) fn decode_flat(
+    schema: &str,
+    declared: Option<&[String]>,
+    data: &[u8],
+) -> Option<Record> {
+    let obj = Flat::scan(data)?;
+    // Large payloads are filled in place, on the heap.
+    let (ok, r) = match schema {
+        RAW_SCHEMA => {
+            let mut m = Box::new(RawFrame::ZERO);
+            (flat::fill(&obj, declared, &mut *m), Record::Raw(m))
+        }
+        // Estimates written before they carried their shape take the general path.
+        CURVATURE_SCHEMA if !obj.has("rows") && !obj.has("cols") => return None,
+        CURVATURE_SCHEMA => {
+            let mut m = Box::new(CurvatureEstimate::ZERO);
+            (flat::fill(&obj, declared, &mut *m), Record::Curvature(m))
+        }
+        FORCE_SCHEMA => {
+            let mut m = ForceSample::ZERO;
+            (flat::fill(&obj, declared, &mut m), Record::Force(m))
+        }
+        REFERENCE_SCHEMA => {
+            let mut m = Reference::ZERO;
+            (flat::fill(&obj, declared, &mut m), Record::Reference(m))
+        }
+        _ => return None,
+    };
+    ok.then_some(r)
 }

@@ -6,7 +6,9 @@
 //! record file, uncompressed and chunked with an index. Non-finite floats are written as JSON
 //! `null` and read back as NaN. Layout documented in docs/formats.md.
 
+mod flat;
 mod json;
+mod read;
 
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
@@ -18,8 +20,9 @@ use taxel_msgs::sensor_id_str;
 use crate::csv::Recording;
 use crate::records::Record;
 
-use json::{declared_fields, decode, encode};
+use json::encode;
 pub use json::{json_schema, CURVATURE_SCHEMA, FORCE_SCHEMA, RAW_SCHEMA, REFERENCE_SCHEMA};
+use read::for_each_message;
 
 /// Why an MCAP file could not be written or read.
 #[derive(Debug, thiserror::Error)]
@@ -196,50 +199,6 @@ fn parse_messages(path: &Path, bytes: &[u8]) -> Result<Vec<McapMessage>, McapErr
         Ok(())
     })?;
     Ok(out)
-}
-
-/// Decodes every message of `bytes` (read from `path`) in file order and hands it to `f`.
-fn for_each_message(
-    path: &Path,
-    bytes: &[u8],
-    mut f: impl FnMut(McapMessage) -> Result<(), McapError>,
-) -> Result<(), McapError> {
-    let stream = ::mcap::MessageStream::new(bytes).map_err(|error| McapError::Mcap {
-        path: path.to_path_buf(),
-        error,
-    })?;
-    // The fields each channel's writer declared in its schema.
-    let mut declared: HashMap<u16, Option<Vec<String>>> = HashMap::new();
-    for (index, m) in stream.enumerate() {
-        let m = m.map_err(|error| McapError::Stream {
-            path: path.to_path_buf(),
-            index,
-            error,
-        })?;
-        let topic = m.channel.topic.clone();
-        let schema = m.channel.schema.as_ref();
-        let fields = declared
-            .entry(m.channel.id)
-            .or_insert_with(|| schema.and_then(|s| declared_fields(&s.data)));
-        let record = match (m.channel.message_encoding.as_str(), schema) {
-            ("json", Some(schema)) => decode(&schema.name, fields.as_deref(), &m.data),
-            (enc, _) => Err(format!("message encoding {enc:?} with no taxel schema")),
-        }
-        .map_err(|reason| McapError::Message {
-            path: path.to_path_buf(),
-            index,
-            topic: topic.clone(),
-            reason,
-        })?;
-        f(McapMessage {
-            topic,
-            log_time: m.log_time,
-            publish_time: m.publish_time,
-            sequence: m.sequence,
-            record,
-        })?;
-    }
-    Ok(())
 }
 
 /// The raw channel of one sensor of an MCAP file, as a recording: `t_s` = `t_capture_ns` / 1e9,
@@ -567,5 +526,158 @@ mod tests {
         let e = read_messages(&p).expect_err("cut short").to_string();
         assert!(e.contains("bad.mcap: unreadable after"), "{e}");
         assert_eq!(e.matches("ended in the middle").count(), 1, "{e}");
+    }
+
+    /// The schema name of a record's channel.
+    fn schema(r: &Record) -> &'static str {
+        match r {
+            Record::Raw(_) => RAW_SCHEMA,
+            Record::Curvature(_) => CURVATURE_SCHEMA,
+            Record::Force(_) => FORCE_SCHEMA,
+            Record::Reference(_) => REFERENCE_SCHEMA,
+        }
+    }
+
+    #[test]
+    fn fast_path_reads_what_the_writer_writes() {
+        for r in records() {
+            let data = encode(&r);
+            let fast = json::decode_flat(schema(&r), None, &data).expect("fast path");
+            assert!(same(&fast, &r), "{fast:?}\n{r:?}");
+        }
+    }
+
+    /// Variants of each written message: where the fast path reads one, the general path reads
+    /// the same payload; every other goes to the general path, which reads it or names why not.
+    #[test]
+    fn fast_path_never_disagrees_with_the_general_path() {
+        let edits: &[(&str, &str)] = &[
+            (",", " ,\n\t"),
+            (":", " : "),
+            ("{", "{\"extra_from_a_newer_writer\":[1,null],"),
+            ("{", "{\"seq\":99,"),
+            ("\"seq\":", "\"seq\":1.0,\"x\":"),
+            ("\"seq\":", "\"seq\":-0,\"x\":"),
+            ("\"seq\":", "\"seq\":01,\"x\":"),
+            ("\"seq\":", "\"seq\":1e400,\"x\":"),
+            ("\"seq\":", "\"seq\":18446744073709551616,\"x\":"),
+            ("\"seq\":", "\"seq\":-1,\"x\":"),
+            ("\"seq\":", "\"seq\":true,\"x\":"),
+            ("\"seq\":", "\"sequence\":"),
+            ("\"s0\"", "\"s\\u0030\""),
+            ("\"s0\"", "\"s0\\\"\""),
+            (":1023.0", ":1e400"),
+            (":1023.0", ":1.5E2"),
+            (":1023.0", ":-.5"),
+            (":1023.0", ":{\"a\":1}"),
+            ("[", "[1,"),
+            ("[", "[ "),
+            ("]", ",]"),
+            ("}", "}x"),
+            ("}", ",}"),
+            ("{", "["),
+        ];
+        let (mut fast_n, mut general_n) = (0, 0);
+        for r in records() {
+            let data = String::from_utf8(encode(&r)).expect("utf-8");
+            for (from, to) in edits {
+                let Some(at) = data.find(from) else { continue };
+                let edited = format!("{}{to}{}", &data[..at], &data[at + from.len()..]);
+                let general = json::decode_general(schema(&r), None, edited.as_bytes());
+                match json::decode_flat(schema(&r), None, edited.as_bytes()) {
+                    Some(fast) => {
+                        fast_n += 1;
+                        let general = general.expect("the general path reads it too");
+                        assert!(same(&fast, &general), "{edited}");
+                    }
+                    None => general_n += 1,
+                }
+                // The public decoder gives what the general path gives.
+                let public = json::decode(schema(&r), None, edited.as_bytes());
+                match (
+                    public,
+                    json::decode_general(schema(&r), None, edited.as_bytes()),
+                ) {
+                    (Ok(a), Ok(b)) => assert!(same(&a, &b), "{edited}"),
+                    (Err(a), Err(b)) => assert_eq!(a, b, "{edited}"),
+                    (a, b) => panic!("{edited}: {a:?} vs {b:?}"),
+                }
+            }
+        }
+        // Both paths were exercised.
+        assert!(
+            fast_n >= 12 && general_n >= 40,
+            "{fast_n} fast, {general_n} general"
+        );
+    }
+
+    /// Threads change nothing: the same messages in the same order, and a damaged message
+    /// deep in a long file gives the same error after the same messages.
+    #[test]
+    fn threaded_read_is_the_same_as_one_thread() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("long.mcap");
+        let mut w =
+            ::mcap::Writer::new(BufWriter::new(File::create(&p).expect("create"))).expect("writer");
+        let text = json_schema(RAW_SCHEMA).expect("schema");
+        let schema = w
+            .add_schema(RAW_SCHEMA, "jsonschema", text.as_bytes())
+            .expect("schema");
+        let channel = w
+            .add_channel(schema, "/taxel/s0/raw", "json", &BTreeMap::new())
+            .expect("channel");
+        let mut raw = records().remove(0);
+        for seq in 0..5000u32 {
+            if let Record::Raw(f) = &mut raw {
+                f.seq = seq as u64;
+            }
+            let data = if seq == 3333 {
+                b"{\"seq\":".to_vec()
+            } else {
+                encode(&raw)
+            };
+            let header = ::mcap::records::MessageHeader {
+                channel_id: channel,
+                sequence: seq,
+                log_time: seq as u64,
+                publish_time: seq as u64,
+            };
+            w.write_to_known_channel(&header, &data).expect("write");
+        }
+        w.finish().expect("finish");
+        let bytes = std::fs::read(&p).expect("read");
+        let run = |threaded: bool| {
+            let mut got = Vec::new();
+            let e = read::for_each_message_on(&p, &bytes, threaded, |m| {
+                got.push(m);
+                Ok(())
+            });
+            (got, e.map_err(|e| e.to_string()))
+        };
+        let (one, e1) = run(false);
+        let (two, e2) = run(true);
+        assert_eq!((one.len(), two.len()), (3333, 3333));
+        // Debug text: NaN counts compare equal.
+        let same_all = one
+            .iter()
+            .zip(&two)
+            .all(|(a, b)| format!("{a:?}") == format!("{b:?}"));
+        assert!(same_all, "the threaded read differs");
+        let e1 = e1.expect_err("damaged");
+        assert!(e1.contains("message 3333 on /taxel/s0/raw"), "{e1}");
+        assert_eq!(Err(e1), e2);
+        // A caller that stops early stops the threads.
+        let mut n = 0;
+        let stop = read::for_each_message_on(&p, &bytes, true, |_| {
+            n += 1;
+            if n == 1500 {
+                return Err(McapError::Content {
+                    path: p.clone(),
+                    reason: "enough".into(),
+                });
+            }
+            Ok(())
+        });
+        assert!(stop.is_err() && n == 1500);
     }
 }
