@@ -6,11 +6,12 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use clap::Parser;
-use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
+use taxel_runtime::process::{exit_code, CommonArgs, Failure, ResultExt};
 use taxel_runtime::Shutdown;
 
 use crate::config::BridgeConfig;
 use crate::run::{run, BridgeError};
+use crate::tls::{RefusalLayer, TlsFiles};
 
 /// Relay chosen iceoryx2 services to other hosts over Zenoh, for observation and logging (not
 /// for control: keep the control loop on the sensor's host). Run one on each host with the
@@ -24,8 +25,9 @@ pub struct Args {
     /// `?` one character. E.g. 'taxel/glove0/*' or 'taxel/*/force'.
     #[arg(long)]
     pub allow: Vec<String>,
-    /// Zenoh endpoint to listen on, repeatable, e.g. tcp/127.0.0.1:7447. Loopback only
-    /// (nothing authenticates or encrypts yet) unless --insecure-listen.
+    /// Zenoh endpoint to listen on, repeatable, e.g. tls/0.0.0.0:7447 (with --tls-*) or
+    /// tcp/127.0.0.1:7447. tcp/ (and tls/ without mutual authentication): loopback only
+    /// unless --insecure-listen.
     #[arg(long)]
     pub listen: Vec<String>,
     /// Listen on addresses other than loopback (tcp/0.0.0.0:7447, a LAN address) although the
@@ -33,11 +35,23 @@ pub struct Args {
     /// inject the allowed streams.
     #[arg(long)]
     pub insecure_listen: bool,
-    /// Zenoh endpoint of a peer bridge to connect to, repeatable, e.g. tcp/glove-pc:7447.
+    /// Zenoh endpoint of a peer bridge to connect to, repeatable, e.g. tls/glove-pc:7447 or
+    /// tcp/127.0.0.1:7447.
     #[arg(long)]
     pub connect: Vec<String>,
-    /// Zenoh configuration file (JSON5) to start from (e.g. for access control); --listen and
-    /// --connect are added to it.
+    /// TLS with mutual authentication: this bridge's certificate (PEM), presented when it
+    /// listens and when it connects. With --tls-key and --tls-ca.
+    #[arg(long, value_name = "PEM")]
+    pub tls_cert: Option<PathBuf>,
+    /// The private key of --tls-cert (PEM).
+    #[arg(long, value_name = "PEM")]
+    pub tls_key: Option<PathBuf>,
+    /// The CA certificate (PEM) every peer's certificate must be signed by; peers without one
+    /// are refused.
+    #[arg(long, value_name = "PEM")]
+    pub tls_ca: Option<PathBuf>,
+    /// Zenoh configuration file (JSON5) to start from (e.g. for access control, or TLS under
+    /// transport.link.tls); --listen, --connect and --tls-* are added to it.
     #[arg(long)]
     pub zenoh_config: Option<PathBuf>,
     /// Log each stream's counts, losses and ages this often (seconds).
@@ -69,6 +83,12 @@ impl Args {
             report_every: seconds("report-s", self.report_s)?,
             run_for: self.seconds.map(|s| seconds("seconds", s)).transpose()?,
             insecure_listen: self.insecure_listen,
+            tls: TlsFiles::from_flags(
+                self.tls_cert.clone(),
+                self.tls_key.clone(),
+                self.tls_ca.clone(),
+            )
+            .config_err()?,
         };
         cfg.validate().config_err()?;
         Ok(cfg)
@@ -81,11 +101,11 @@ pub fn main(args: Args) -> ExitCode {
         args.common.log.clone()
     } else {
         format!(
-            "{},zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn",
+            "{},zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn,zenoh_link_tls=warn",
             args.common.log
         )
     };
-    init_tracing(&filter);
+    taxel_runtime::process::init_tracing_with(&filter, Some(Box::new(RefusalLayer)));
     exit_code("taxel-bridge", main_inner(&args))
 }
 
@@ -97,10 +117,24 @@ fn main_inner(args: &Args) -> Result<(), Failure> {
             "--insecure-listen: listening without authentication or encryption; anyone who reaches {:?} can read and inject the allowed streams",
             cfg.listen
         );
+    } else if let Some(t) = &cfg.tls {
+        tracing::info!(
+            "TLS with mutual authentication: peers need a certificate signed by {}",
+            t.ca.display()
+        );
     } else if !cfg.listen.is_empty() || cfg.zenoh_file.is_some() {
         tracing::info!(
-            "listening on loopback only (no TLS yet; --insecure-listen to listen on a network)"
+            "without TLS: listening on loopback only (tls/ with --tls-cert, --tls-key and --tls-ca, or --insecure-listen, to listen on a network)"
         );
+    }
+    if cfg.tls.is_some()
+        && !cfg
+            .listen
+            .iter()
+            .chain(&cfg.connect)
+            .any(|e| e.starts_with("tls/"))
+    {
+        tracing::warn!("--tls-cert, --tls-key and --tls-ca are set but no --listen or --connect endpoint is tls/HOST:PORT");
     }
     let shutdown = Shutdown::install().runtime_err()?;
     let report = match run(&cfg, &shutdown) {
@@ -115,6 +149,9 @@ fn main_inner(args: &Args) -> Result<(), Failure> {
     );
     for l in report.lines() {
         println!("  {l}");
+    }
+    if report.refused > 0 {
+        println!("  refused TLS peers: {}", report.refused);
     }
     Ok(())
 }
