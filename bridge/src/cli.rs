@@ -1,14 +1,16 @@
 //! `taxel bridge` / `taxel-bridge`: arguments, validation (exit 2 with one line naming the
-//! flag), tracing, shutdown, and the final report on stdout.
+//! flag), tracing, shutdown, and the final report on stdout; `taxel bridge certs` writes test
+//! certificates.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
 use clap::Parser;
-use taxel_runtime::process::{exit_code, CommonArgs, Failure, ResultExt};
+use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
 use taxel_runtime::Shutdown;
 
+use crate::certs::{CertsError, CertsSpec};
 use crate::config::BridgeConfig;
 use crate::run::{run, BridgeError};
 use crate::tls::{RefusalLayer, TlsFiles};
@@ -17,8 +19,10 @@ use crate::tls::{RefusalLayer, TlsFiles};
 /// for control: keep the control loop on the sensor's host). Run one on each host with the
 /// same --allow globs; one --listen, the others --connect to it.
 #[derive(Debug, Parser)]
-#[command(name = "taxel-bridge", version)]
+#[command(name = "taxel-bridge", version, args_conflicts_with_subcommands = true)]
 pub struct Args {
+    #[command(subcommand)]
+    pub command: Option<Command>,
     #[command(flatten)]
     pub common: CommonArgs,
     /// Service-name glob to bridge, repeatable: `*` matches any run of characters (also `/`),
@@ -40,7 +44,8 @@ pub struct Args {
     #[arg(long)]
     pub connect: Vec<String>,
     /// TLS with mutual authentication: this bridge's certificate (PEM), presented when it
-    /// listens and when it connects. With --tls-key and --tls-ca.
+    /// listens and when it connects (`taxel bridge certs` makes one). With --tls-key and
+    /// --tls-ca.
     #[arg(long, value_name = "PEM")]
     pub tls_cert: Option<PathBuf>,
     /// The private key of --tls-cert (PEM).
@@ -60,6 +65,31 @@ pub struct Args {
     /// Stop after this many seconds (default: until Ctrl-C).
     #[arg(long)]
     pub seconds: Option<f64>,
+}
+
+#[derive(Debug, clap::Subcommand)]
+pub enum Command {
+    /// Write a private CA, a server pair and a client pair (PEM) to try TLS with: ca.pem,
+    /// ca.key, server.pem, server.key, client.pem, client.key.
+    Certs(CertsArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct CertsArgs {
+    /// Directory to write the files to (created if missing).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Another name of the listening host for the server certificate (DNS name or IP address),
+    /// repeatable; localhost, 127.0.0.1 and ::1 are always in it. A bridge connecting to
+    /// tls/HOST:PORT checks HOST against these names.
+    #[arg(long)]
+    pub host: Vec<String>,
+    /// Validity of the certificates in days.
+    #[arg(long, default_value_t = 365)]
+    pub days: u32,
+    /// Replace files that exist.
+    #[arg(long)]
+    pub force: bool,
 }
 
 fn seconds(flag: &'static str, s: f64) -> Result<Duration, Failure> {
@@ -105,8 +135,38 @@ pub fn main(args: Args) -> ExitCode {
             args.common.log
         )
     };
+    if let Some(Command::Certs(c)) = &args.command {
+        init_tracing(&filter);
+        return exit_code("taxel-bridge certs", certs(c));
+    }
     taxel_runtime::process::init_tracing_with(&filter, Some(Box::new(RefusalLayer)));
     exit_code("taxel-bridge", main_inner(&args))
+}
+
+fn certs(a: &CertsArgs) -> Result<(), Failure> {
+    let spec = CertsSpec {
+        out: a.out.clone(),
+        hosts: a.host.clone(),
+        days: a.days,
+        force: a.force,
+    };
+    let files = match crate::certs::make(&spec) {
+        Ok(f) => f,
+        Err(e @ (CertsError::Io(..) | CertsError::Rcgen(_))) => return Err(Failure::runtime(e)),
+        Err(e) => return Err(Failure::config(e)),
+    };
+    for f in &files {
+        println!("wrote {}", f.display());
+    }
+    let d = a.out.display();
+    println!(
+        "listening host:  taxel bridge --allow GLOB --listen tls/0.0.0.0:7447 --tls-cert {d}/server.pem --tls-key {d}/server.key --tls-ca {d}/ca.pem"
+    );
+    println!(
+        "connecting host: taxel bridge --allow GLOB --connect tls/HOST:7447 --tls-cert {d}/client.pem --tls-key {d}/client.key --tls-ca {d}/ca.pem"
+    );
+    println!("keep ca.key off both hosts (it signs new certificates); HOST must be one of the server certificate's names (--host)");
+    Ok(())
 }
 
 fn main_inner(args: &Args) -> Result<(), Failure> {

@@ -462,6 +462,87 @@ mod tests {
     }
 
     #[test]
+    fn tls_endpoints_need_certificates_and_may_listen_on_a_network() {
+        let dir = tempfile::tempdir().expect("dir");
+        let certs = dir.path().join("certs");
+        crate::certs::make(&crate::certs::CertsSpec {
+            out: certs.clone(),
+            hosts: vec![],
+            days: 2,
+            force: false,
+        })
+        .expect("certificates");
+        let files = TlsFiles {
+            cert: certs.join("server.pem"),
+            key: certs.join("server.key"),
+            ca: certs.join("ca.pem"),
+        };
+        // A tls/ endpoint without certificates: refused, naming the flags.
+        let mut c = cfg();
+        c.listen = vec!["tls/0.0.0.0:7447".into()];
+        let e = c.validate().expect_err("no certificates").to_string();
+        assert!(e.starts_with("--listen") && e.contains("--tls-cert"), "{e}");
+        c.connect = vec![];
+        // With them: a network address is fine, and Zenoh gets mutual TLS.
+        c.tls = Some(files.clone());
+        c.validate().expect("mutual TLS on a network");
+        let z = c.zenoh().expect("zenoh");
+        let zt = ZenohTls::read(&z);
+        assert!(zt.mtls && zt.authenticates_peers(), "{zt:?}");
+        // TCP stays loopback-only, TLS or not.
+        c.listen = vec!["tcp/0.0.0.0:7447".into()];
+        let e = c.validate().expect_err("tcp on a network").to_string();
+        assert!(e.contains("--insecure-listen"), "{e}");
+        // A bad file: one line naming the flag and the file.
+        let mut c = cfg();
+        c.listen = vec!["tls/0.0.0.0:7447".into()];
+        c.tls = Some(TlsFiles {
+            key: certs.join("client.key"),
+            ..files.clone()
+        });
+        let e = c.validate().expect_err("mismatched key").to_string();
+        assert!(
+            e.starts_with("--tls-key") && e.contains("client.key"),
+            "{e}"
+        );
+        // The same through a Zenoh file: mutual TLS may listen on a network, TLS without
+        // client certificates may not, and its files are checked, naming the key.
+        let p = dir.path().join("z.json5");
+        let q = |n: &str| certs.join(n).display().to_string();
+        for (mtls, key, ok) in [
+            (true, "server.key", true),
+            (false, "server.key", false),
+            (true, "client.key", false),
+        ] {
+            std::fs::write(
+                &p,
+                format!(
+                    r#"{{ listen: {{ endpoints: ["tls/0.0.0.0:7447"] }}, transport: {{ link: {{ tls: {{ root_ca_certificate: "{}", listen_certificate: "{}", listen_private_key: "{}", enable_mtls: {mtls} }} }} }} }}"#,
+                    q("ca.pem"),
+                    q("server.pem"),
+                    q(key)
+                ),
+            )
+            .expect("write");
+            let mut c = cfg();
+            c.listen.clear();
+            c.zenoh_file = Some(p.clone());
+            let r = c.validate();
+            assert_eq!(r.is_ok(), ok, "mtls {mtls}, {key}: {r:?}");
+            if let Err(e) = r {
+                let e = e.to_string();
+                assert!(e.starts_with("--zenoh-config"), "{e}");
+                if key == "client.key" {
+                    assert!(
+                        e.contains("listen_private_key") && e.contains("client.key"),
+                        "{e}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
     fn mirrors_get_the_stream_qos() {
         let c = cfg().iceoryx2().expect("config");
         let ps = &c.defaults.publish_subscribe;

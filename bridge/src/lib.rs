@@ -14,6 +14,7 @@
 //! without TLS it listens on loopback only unless `--insecure-listen`. The control path stays
 //! local: the bridge is not for control (docs/bridge.md).
 
+pub mod certs;
 pub mod cli;
 pub mod config;
 pub mod run;
