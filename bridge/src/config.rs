@@ -11,6 +11,8 @@ use iceoryx2_link_backend::AllowList;
 use taxel_msgs::Stream;
 use taxel_runtime::ipc::{MAX_NODES, MAX_PUBLISHERS, MAX_SUBSCRIBERS};
 
+use crate::tls::{self, Roles, Source, TlsFiles, ZenohTls};
+
 /// Why a configuration was refused (one line, naming the offending value).
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -30,8 +32,14 @@ pub enum ConfigError {
     Prefix(String, String),
     #[error("--{0} {1}: must be a positive number of seconds")]
     Seconds(&'static str, f64),
-    #[error("{0} {1:?}: not a loopback address, and the bridge has no TLS yet, so anyone who reaches it could read and inject streams; listen on 127.0.0.1 or [::1], or add --insecure-listen to listen there anyway")]
+    #[error("{0} {1:?}: not a loopback address, and nothing authenticates the peers there, so anyone who reaches it could read and inject streams; listen on 127.0.0.1 or [::1], on tls/HOST:PORT with --tls-cert, --tls-key and --tls-ca, or add --insecure-listen to listen there anyway")]
     OpenListen(String, String),
+    #[error("--tls-cert, --tls-key and --tls-ca go together: {0} missing")]
+    TlsIncomplete(String),
+    #[error("{0} {1}: {2}")]
+    TlsFile(String, PathBuf, String),
+    #[error("--{0} {1:?}: a tls/ endpoint needs --tls-cert, --tls-key and --tls-ca (or transport/link/tls in --zenoh-config)")]
+    TlsEndpoint(&'static str, String),
 }
 
 /// A validated bridge configuration.
@@ -41,7 +49,7 @@ pub struct BridgeConfig {
     pub prefix: String,
     /// Service-name globs (`*` any run of characters including `/`, `?` one character).
     pub allow: Vec<String>,
-    /// Zenoh endpoints to listen on (`tcp/ADDR:PORT`).
+    /// Zenoh endpoints to listen on (`tcp/ADDR:PORT`, `tls/ADDR:PORT`).
     pub listen: Vec<String>,
     /// Zenoh endpoints to connect to.
     pub connect: Vec<String>,
@@ -54,6 +62,8 @@ pub struct BridgeConfig {
     /// Listen on addresses other than loopback although nothing authenticates or encrypts
     /// (`--insecure-listen`).
     pub insecure_listen: bool,
+    /// TLS with mutual authentication (`--tls-cert`, `--tls-key`, `--tls-ca`).
+    pub tls: Option<TlsFiles>,
 }
 
 /// How often the link looks for new and vanished services on both sides.
@@ -89,7 +99,10 @@ impl BridgeConfig {
         if self.listen.is_empty() && self.connect.is_empty() && self.zenoh_file.is_none() {
             return Err(ConfigError::NoEndpoint);
         }
-        self.check_listen_on_loopback()?;
+        let zc = self.zenoh()?;
+        let zt = ZenohTls::read(&zc);
+        self.check_tls(&zc, &zt)?;
+        self.check_listen_on_loopback(&zt)?;
         taxel_runtime::ipc::config(&self.prefix)
             .map_err(|e| ConfigError::Prefix(self.prefix.clone(), e.detail))?;
         let s = self.report_every.as_secs_f64();
@@ -99,15 +112,56 @@ impl BridgeConfig {
         Ok(())
     }
 
-    /// Without TLS the bridge listens on loopback only, unless `--insecure-listen`: every
-    /// `--listen` endpoint, and every endpoint a `--zenoh-config` file listens on (Zenoh's
-    /// default when the file names none is every interface).
-    fn check_listen_on_loopback(&self) -> Result<(), ConfigError> {
+    /// TLS: a `tls/` endpoint needs certificates to listen with (or a CA to connect with), and
+    /// every TLS file is checked now (exit 2 naming the flag and the file) rather than when
+    /// Zenoh opens the session.
+    fn check_tls(&self, zc: &zenoh::Config, zt: &ZenohTls) -> Result<(), ConfigError> {
+        let is_tls = |e: &String| e.starts_with("tls/");
+        let listen = endpoints_in(&zc.get_json("listen/endpoints").unwrap_or_default());
+        let connect = endpoints_in(&zc.get_json("connect/endpoints").unwrap_or_default());
+        let roles = Roles {
+            listen: listen.iter().any(is_tls),
+            connect: connect.iter().any(is_tls),
+        };
+        if let Some(e) = listen
+            .iter()
+            .find(|e| is_tls(e))
+            .filter(|_| !zt.can_listen())
+        {
+            return Err(ConfigError::TlsEndpoint("listen", e.clone()));
+        }
+        if let Some(e) = connect
+            .iter()
+            .find(|e| is_tls(e))
+            .filter(|_| !zt.can_connect())
+        {
+            return Err(ConfigError::TlsEndpoint("connect", e.clone()));
+        }
+        match (&self.tls, &self.zenoh_file) {
+            (Some(f), _) => tls::check(
+                &Source::flag("--tls-cert", &f.cert),
+                &Source::flag("--tls-key", &f.key),
+                &Source::flag("--tls-ca", &f.ca),
+                roles,
+            ),
+            (None, Some(file)) => zt.check_files(file, roles),
+            (None, None) => Ok(()),
+        }
+    }
+
+    /// Unless `--insecure-listen`, the bridge listens on loopback only, or on a `tls/`
+    /// endpoint with mutual authentication: every `--listen` endpoint, and every endpoint a
+    /// `--zenoh-config` file listens on (Zenoh's default when the file names none is every
+    /// interface).
+    fn check_listen_on_loopback(&self, zt: &ZenohTls) -> Result<(), ConfigError> {
         if self.insecure_listen {
             return Ok(());
         }
+        let ok = |e: &str| {
+            endpoint_is_loopback(e) || (e.starts_with("tls/") && zt.authenticates_peers())
+        };
         for e in &self.listen {
-            if !endpoint_is_loopback(e) {
+            if !ok(e) {
                 return Err(ConfigError::OpenListen("--listen".into(), e.clone()));
             }
         }
@@ -116,7 +170,7 @@ impl BridgeConfig {
             let what = format!("--zenoh-config {}: listen endpoint", p.display());
             let json = c.get_json("listen/endpoints").unwrap_or_default();
             for e in endpoints_in(&json) {
-                if !endpoint_is_loopback(&e) {
+                if !ok(&e) {
                     return Err(ConfigError::OpenListen(what, e));
                 }
             }
@@ -166,6 +220,11 @@ impl BridgeConfig {
             "transport/link/tx/queue/congestion_control/drop/wait_before_drop",
             "20000",
         )?;
+        if let Some(f) = &self.tls {
+            for (key, value) in tls::zenoh_settings(f) {
+                set(&mut c, key, &value)?;
+            }
+        }
         if !self.listen.is_empty() {
             set(&mut c, "listen/endpoints", &json_list(&self.listen))?;
         }
@@ -193,11 +252,12 @@ fn one_line(s: &str) -> String {
     s.replace('\n', " ")
 }
 
-/// Zenoh is built with TCP only: `tcp/HOST:PORT`, HOST a name, an IPv4 address or `[IPv6]`.
+/// Zenoh is built with TCP and TLS only: `tcp/HOST:PORT` or `tls/HOST:PORT`, HOST a name, an
+/// IPv4 address or `[IPv6]`.
 fn check_endpoint(e: &str) -> Result<(), String> {
-    let Some(addr) = e.strip_prefix("tcp/") else {
+    let Some(addr) = e.strip_prefix("tcp/").or_else(|| e.strip_prefix("tls/")) else {
         return Err(
-            "use tcp/HOST:PORT (the bridge is built with Zenoh's TCP transport only)".into(),
+            "use tcp/HOST:PORT or tls/HOST:PORT (the bridge is built with Zenoh's TCP and TLS transports only)".into(),
         );
     };
     let addr = addr.split('#').next().unwrap_or(addr);
@@ -212,10 +272,13 @@ fn check_endpoint(e: &str) -> Result<(), String> {
     Ok(())
 }
 
-/// Whether a `tcp/HOST:PORT` endpoint listens on loopback only: `localhost`, 127.0.0.0/8 or
-/// `[::1]`.
+/// Whether a `tcp/HOST:PORT` (or `tls/`) endpoint listens on loopback only: `localhost`,
+/// 127.0.0.0/8 or `[::1]`.
 fn endpoint_is_loopback(e: &str) -> bool {
-    let addr = e.strip_prefix("tcp/").unwrap_or(e);
+    let addr = e
+        .strip_prefix("tcp/")
+        .or_else(|| e.strip_prefix("tls/"))
+        .unwrap_or(e);
     let addr = addr.split('#').next().unwrap_or(addr);
     let Some((host, _port)) = addr.rsplit_once(':') else {
         return false;
@@ -280,6 +343,7 @@ mod tests {
             report_every: Duration::from_secs(5),
             run_for: None,
             insecure_listen: false,
+            tls: None,
         }
     }
 
@@ -393,6 +457,87 @@ mod tests {
             assert_eq!(r.is_err(), open, "{text}: {r:?}");
             if let Err(e) = r {
                 assert!(e.to_string().starts_with("--zenoh-config"), "{e}");
+            }
+        }
+    }
+
+    #[test]
+    fn tls_endpoints_need_certificates_and_may_listen_on_a_network() {
+        let dir = tempfile::tempdir().expect("dir");
+        let certs = dir.path().join("certs");
+        crate::certs::make(&crate::certs::CertsSpec {
+            out: certs.clone(),
+            hosts: vec![],
+            days: 2,
+            force: false,
+        })
+        .expect("certificates");
+        let files = TlsFiles {
+            cert: certs.join("server.pem"),
+            key: certs.join("server.key"),
+            ca: certs.join("ca.pem"),
+        };
+        // A tls/ endpoint without certificates: refused, naming the flags.
+        let mut c = cfg();
+        c.listen = vec!["tls/0.0.0.0:7447".into()];
+        let e = c.validate().expect_err("no certificates").to_string();
+        assert!(e.starts_with("--listen") && e.contains("--tls-cert"), "{e}");
+        c.connect = vec![];
+        // With them: a network address is fine, and Zenoh gets mutual TLS.
+        c.tls = Some(files.clone());
+        c.validate().expect("mutual TLS on a network");
+        let z = c.zenoh().expect("zenoh");
+        let zt = ZenohTls::read(&z);
+        assert!(zt.mtls && zt.authenticates_peers(), "{zt:?}");
+        // TCP stays loopback-only, TLS or not.
+        c.listen = vec!["tcp/0.0.0.0:7447".into()];
+        let e = c.validate().expect_err("tcp on a network").to_string();
+        assert!(e.contains("--insecure-listen"), "{e}");
+        // A bad file: one line naming the flag and the file.
+        let mut c = cfg();
+        c.listen = vec!["tls/0.0.0.0:7447".into()];
+        c.tls = Some(TlsFiles {
+            key: certs.join("client.key"),
+            ..files.clone()
+        });
+        let e = c.validate().expect_err("mismatched key").to_string();
+        assert!(
+            e.starts_with("--tls-key") && e.contains("client.key"),
+            "{e}"
+        );
+        // The same through a Zenoh file: mutual TLS may listen on a network, TLS without
+        // client certificates may not, and its files are checked, naming the key.
+        let p = dir.path().join("z.json5");
+        let q = |n: &str| certs.join(n).display().to_string();
+        for (mtls, key, ok) in [
+            (true, "server.key", true),
+            (false, "server.key", false),
+            (true, "client.key", false),
+        ] {
+            std::fs::write(
+                &p,
+                format!(
+                    r#"{{ listen: {{ endpoints: ["tls/0.0.0.0:7447"] }}, transport: {{ link: {{ tls: {{ root_ca_certificate: "{}", listen_certificate: "{}", listen_private_key: "{}", enable_mtls: {mtls} }} }} }} }}"#,
+                    q("ca.pem"),
+                    q("server.pem"),
+                    q(key)
+                ),
+            )
+            .expect("write");
+            let mut c = cfg();
+            c.listen.clear();
+            c.zenoh_file = Some(p.clone());
+            let r = c.validate();
+            assert_eq!(r.is_ok(), ok, "mtls {mtls}, {key}: {r:?}");
+            if let Err(e) = r {
+                let e = e.to_string();
+                assert!(e.starts_with("--zenoh-config"), "{e}");
+                if key == "client.key" {
+                    assert!(
+                        e.contains("listen_private_key") && e.contains("client.key"),
+                        "{e}"
+                    );
+                }
             }
         }
     }

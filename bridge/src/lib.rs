@@ -8,13 +8,18 @@
 //! bridge published itself is never sent back. This crate adds what taxel needs around the
 //! link: the configuration (allow globs, Zenoh endpoints, the stream QoS mirrors are created
 //! with), a loop that wakes on local notifications and on Zenoh arrivals, and per-stream
-//! statistics (loss from `seq` gaps, reordering, age from `t_capture_ns`). The control path
-//! stays local: the bridge is not for control (docs/bridge.md).
+//! statistics (loss from `seq` gaps, reordering, age from `t_capture_ns`). Across a network it
+//! runs over Zenoh's TLS transport with mutual authentication (`--tls-cert`, `--tls-key`,
+//! `--tls-ca`, see `tls`): peers without a certificate of the CA are refused, logged and counted;
+//! without TLS it listens on loopback only unless `--insecure-listen`. The control path stays
+//! local: the bridge is not for control (docs/bridge.md).
 
+pub mod certs;
 pub mod cli;
 pub mod config;
 pub mod run;
 pub mod stats;
+pub mod tls;
 
 pub use config::{BridgeConfig, ConfigError};
 pub use run::{run, Report};

@@ -81,6 +81,8 @@ pub struct StreamReport {
 pub struct Report {
     pub seconds: f64,
     pub streams: Vec<StreamReport>,
+    /// TLS handshakes this bridge's listener refused (peers without a certificate of the CA).
+    pub refused: u64,
 }
 
 impl Report {
@@ -464,6 +466,10 @@ pub fn run(cfg: &BridgeConfig, shutdown: &Shutdown) -> Result<Report, BridgeErro
                     if let Err(e) = link.discover() {
                         discover_fail.warn(|| format!("discovery: {e}"));
                     }
+                    for why in crate::tls::take_refusals() {
+                        report.refused += 1;
+                        tracing::warn!("refused a peer: TLS handshake failed: {why}");
+                    }
                     let peers = session.info().peers_zid().wait().count();
                     if peers != last_peers {
                         tracing::info!("zenoh peers connected: {peers}");
@@ -492,6 +498,10 @@ pub fn run(cfg: &BridgeConfig, shutdown: &Shutdown) -> Result<Report, BridgeErro
     }
     let _ = link.propagate();
     watched.drain(&link.node().id().clone());
+    for why in crate::tls::take_refusals() {
+        report.refused += 1;
+        tracing::warn!("refused a peer: TLS handshake failed: {why}");
+    }
     log_interval(&mut watched, &mut report);
     report.seconds = start.elapsed().as_secs_f64();
     Ok(report)

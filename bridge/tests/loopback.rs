@@ -406,7 +406,7 @@ fn bad_arguments_are_refused_in_one_line() {
             "--connect",
         ),
         (vec!["--allow", "taxel/*"], "--listen, --connect"),
-        // No TLS yet: a network address needs --insecure-listen.
+        // Plain TCP: a network address needs --insecure-listen (or tls/ with certificates).
         (
             vec!["--allow", "taxel/*", "--listen", "tcp/0.0.0.0:7447"],
             "--insecure-listen",

@@ -85,6 +85,18 @@ fn one_line(e: &anyhow::Error) -> String {
 /// Installs the one tracing subscriber of this process (stderr). iceoryx2's own log output is
 /// gated at `warn` unless the filter asks for more.
 pub fn init_tracing(filter: &str) {
+    init_tracing_with(filter, None);
+}
+
+/// A tracing layer a process adds to the standard output (e.g. the bridge, to notice refused
+/// TLS peers in Zenoh's log events).
+pub type ExtraLayer =
+    Box<dyn tracing_subscriber::Layer<tracing_subscriber::Registry> + Send + Sync>;
+
+/// [`init_tracing`] with one more layer, which sees the events the filter lets through.
+pub fn init_tracing_with(filter: &str, extra: Option<ExtraLayer>) {
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
     use tracing_subscriber::EnvFilter;
     let base = std::env::var("RUST_LOG").unwrap_or_else(|_| filter.to_string());
     let with_iox = if base.contains("iceoryx2") {
@@ -93,12 +105,27 @@ pub fn init_tracing(filter: &str) {
         format!("{base},iceoryx2_bb_loggers=warn")
     };
     let env = EnvFilter::try_new(&with_iox).unwrap_or_else(|_| EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(env)
-        .with_writer(std::io::stderr)
-        .with_target(false)
-        .compact()
-        .try_init();
+    match extra {
+        None => {
+            let _ = tracing_subscriber::fmt()
+                .with_env_filter(env)
+                .with_writer(std::io::stderr)
+                .with_target(false)
+                .compact()
+                .try_init();
+        }
+        Some(extra) => {
+            let fmt = tracing_subscriber::fmt::layer()
+                .with_writer(std::io::stderr)
+                .with_target(false)
+                .compact();
+            let _ = tracing_subscriber::registry()
+                .with(extra)
+                .with(env)
+                .with(fmt)
+                .try_init();
+        }
+    }
     let level = if with_iox.contains("iceoryx2_bb_loggers=trace") {
         iceoryx2::prelude::LogLevel::Trace
     } else if with_iox.contains("iceoryx2_bb_loggers=debug") {
