@@ -126,6 +126,8 @@ pub fn diagnose_with(
         step: 0,
         of: 1,
     });
+    let whole = crate::timing::span("diagnosis");
+    let sp = crate::timing::span("start model");
     let ctx = Context::new(ds);
     let ev_n = opts.max_evals;
     let cfg0 = start_config(&ctx, start);
@@ -151,19 +153,26 @@ pub fn diagnose_with(
         spline_m: SPLINE_SIZES[0],
         progress,
     };
+    drop(sp);
     // Round 0: the static law (saturation against the start model's law, then the flexible
     // law). What the effects are tested against is the best static law.
+    let sp = crate::timing::span("round 0: static law");
     sel.static_law();
+    drop(sp);
     let base = sel.cur.clone();
     let base_cv = sel.cur_cv.clone();
     let base_eval = evaluate(&ctx, &base, &|_| true);
     let base_findings = locate(&ctx, &base_cv.resid, &base_eval.pred);
     for round in 1..=opts.max_effects {
+        let _sp = crate::timing::span(format!("round {round}"));
         if !sel.round(round) {
             break;
         }
     }
+    let sp = crate::timing::span("backward pass");
     let mut contributions = sel.backward();
+    drop(sp);
+    let sp = crate::timing::span("final model, SIM.toml law, findings");
     let Selection {
         mut cur,
         cur_cv,
@@ -224,6 +233,8 @@ pub fn diagnose_with(
         &noise,
         opts.unexplained_ratio,
     );
+    drop(sp);
+    drop(whole);
     let verdict = if !unexplained.is_empty() {
         "unexplained"
     } else if effects.is_empty() {
@@ -504,9 +515,11 @@ impl Selection<'_> {
                 of: todo.len(),
             });
             let tc = Instant::now();
+            let sp = crate::timing::span(format!("  test {}", e.name()));
             let Some((cv, v)) = self.best_variant(e) else {
                 continue;
             };
+            drop(sp);
             self.trials.push(Trial {
                 round,
                 effect: e.name().to_string(),
@@ -521,6 +534,7 @@ impl Selection<'_> {
             return false;
         };
         let before = self.cur_cv.clone();
+        let _sp = crate::timing::span(format!("join {}", e.name()));
         self.join(&cv.fits);
         self.last = Some((e, before));
         true

@@ -38,5 +38,6 @@ pub mod report;
 pub mod search;
 #[cfg(test)]
 mod testdata;
+pub mod timing;
 pub mod unexplained;
 pub mod zoo;

@@ -86,6 +86,32 @@ impl Observed {
     }
 }
 
+/// One node's local regressors (see [`Terms::local`]) at each sample the fit looks at, computed
+/// once per evaluation: the fit's passes and the training SSE read them (the law's basis and the
+/// loads are most of an evaluation's time).
+pub(super) struct Locals {
+    seg: Vec<usize>,
+    v: Vec<f64>,
+    vdim: usize,
+}
+
+impl Locals {
+    fn new(terms: &Terms, k: usize, fit_idx: &[usize]) -> Locals {
+        let vdim = terms.vdim();
+        let mut seg = Vec::with_capacity(fit_idx.len());
+        let mut v = vec![0.0; fit_idx.len() * vdim];
+        for (j, (&i, out)) in fit_idx.iter().zip(v.chunks_exact_mut(vdim)).enumerate() {
+            seg.push(terms.local(k, i, j, out));
+        }
+        Locals { seg, v, vdim }
+    }
+
+    /// The segment and local values at the `j`-th sample the fit looks at.
+    pub(super) fn at(&self, j: usize) -> (usize, &[f64]) {
+        (self.seg[j], &self.v[j * self.vdim..(j + 1) * self.vdim])
+    }
+}
+
 /// The per-node weighted least squares of one evaluation.
 pub(super) struct NodeFit<'a> {
     pub(super) ctx: &'a Context<'a>,
@@ -103,7 +129,7 @@ impl NodeFit<'_> {
     /// weights would favour the highest-resistance samples). The normal equations are summed
     /// per knot segment over the local regressors and then mapped to the full row (one
     /// segment for the power law; see [`crate::law::RowMap`]).
-    pub(super) fn node(&self, k: usize, m: &[f64]) -> Vec<f64> {
+    pub(super) fn node(&self, k: usize, m: &[f64]) -> (Vec<f64>, Locals) {
         let ds = self.ctx.ds;
         let n = ds.n;
         let lay = &self.terms.lay;
@@ -116,8 +142,8 @@ impl NodeFit<'_> {
             2
         };
         let mut th = vec![0.0; pdim];
-        let mut v = vec![0.0; vdim];
         let base = k * self.fit_idx.len();
+        let locals = Locals::new(self.terms, k, self.fit_idx);
         for pass in 0..=gn_passes {
             let mut s_loc = vec![0.0; segments * vdim * vdim];
             let mut r_loc = vec![0.0; segments * vdim];
@@ -127,11 +153,11 @@ impl NodeFit<'_> {
                     continue;
                 }
                 let mi = m[i];
-                let seg = self.terms.local(k, i, j, &mut v);
+                let (seg, v) = locals.at(j);
                 let (z, w) = if pass == 0 {
                     (self.obs.g2[base + j] / mi, w * mi * mi)
                 } else {
-                    let zh = self.terms.z_local(&th, seg, &v).max(1e-15);
+                    let zh = self.terms.z_local(&th, seg, v).max(1e-15);
                     let dom_of = |z: f64| {
                         let g = (mi * z).max(1e-15);
                         ds.map.dom(ds.map.from_g(g / (1.0 + self.r * g)))
@@ -147,7 +173,7 @@ impl NodeFit<'_> {
                     &mut s_loc[seg * vdim * vdim..(seg + 1) * vdim * vdim],
                     &mut r_loc[seg * vdim..(seg + 1) * vdim],
                 );
-                accumulate(sa, rb, &v, w, z);
+                accumulate(sa, rb, v, w, z);
             }
             let mut a = vec![0.0; pdim * pdim];
             let mut b = vec![0.0; pdim];
@@ -168,7 +194,7 @@ impl NodeFit<'_> {
             }
             th = self.solve(&mut a, &mut b);
         }
-        th
+        (th, locals)
     }
 
     /// The per-node normal equations solved: the power law as before (least squares, and a

@@ -19,7 +19,7 @@ use crate::context::Context;
 use crate::effects::{Config, Thermal};
 pub use crate::numeric::{centre_by_level, play_gap, solve_spd};
 use crate::numeric::{hat, lowpass};
-use fit::NodeFit;
+use fit::{Locals, NodeFit};
 use terms::Terms;
 
 /// Result of one evaluation.
@@ -70,6 +70,7 @@ fn evaluate_inner(
     want_pred: bool,
     held_out_only: bool,
 ) -> Eval {
+    crate::timing::count_eval();
     let stride = stride.max(1);
     let ds = ctx.ds;
     let (len, n) = (ds.len(), ds.n);
@@ -98,6 +99,7 @@ fn evaluate_inner(
     let obs = Observed::cached(ctx, cfg, &fit_idx);
     let mut gains = cfg.curv_trials.clone();
     let mut theta = vec![vec![0.0; terms.lay.dim()]; n];
+    let mut locals: Vec<Locals> = Vec::new();
     // A latent drift or per-trial sensitivities are fitted with the nodes, alternately.
     let iterations = if latent.is_some() || gains.is_some() {
         3
@@ -118,7 +120,9 @@ fn evaluate_inner(
             fit_idx: &fit_idx,
             r: cfg.floor(),
         };
-        theta = crate::parallel::map(n, |k| fit.node(k, &m));
+        (theta, locals) = crate::parallel::map(n, |k| fit.node(k, &m))
+            .into_iter()
+            .unzip();
         if it + 1 == iterations {
             break;
         }
@@ -136,7 +140,13 @@ fn evaluate_inner(
     } else {
         Vec::new()
     };
-    let (pred, train_sse) = predict(ctx, cfg, &terms, &theta, &m, looked, want_pred, &skip);
+    let at = Evaluated {
+        terms: &terms,
+        theta: &theta,
+        m: &m,
+        locals: &locals,
+    };
+    let (pred, train_sse) = predict(ctx, cfg, &at, looked, want_pred, &skip);
     Eval {
         pred,
         theta,
@@ -190,20 +200,42 @@ fn apply_latent(ctx: &Context, knots: &[f64], values: &[f64], m: &mut [f64]) {
     }
 }
 
+/// What an evaluation's per-node fit left for the prediction: the regressors, each node's
+/// parameters, the thermal factor and each node's local regressors at the fit's samples.
+struct Evaluated<'a> {
+    terms: &'a Terms,
+    theta: &'a [Vec<f64>],
+    m: &'a [f64],
+    locals: &'a [Locals],
+}
+
+impl Evaluated<'_> {
+    /// Node `k`'s conductance before the thermal factor at sample `i`, the `j`-th the fit looked
+    /// at when `fitted` (read from its local regressors).
+    fn z(&self, k: usize, i: usize, j: usize, fitted: bool) -> f64 {
+        match self.locals.get(k) {
+            Some(l) if fitted => {
+                let (seg, v) = l.at(j);
+                self.terms.z_local(&self.theta[k], seg, v)
+            }
+            _ => self.terms.z(&self.theta[k], k, i, j),
+        }
+    }
+}
+
 /// The forward prediction of every sample (with `want_pred`; 0 where `skip` holds), or only the
-/// SSE over the samples in `looked`. Rows are independent (crosstalk couples the nodes of a row): each
-/// row's SSE is summed over samples in order and the rows' sums in row order.
-#[allow(clippy::too_many_arguments)]
+/// SSE over the samples in `looked` (the fit's samples). Rows are independent (crosstalk couples
+/// the nodes of a row): each row's SSE is summed over samples in order and the rows' sums in row
+/// order.
 fn predict(
     ctx: &Context,
     cfg: &Config,
-    terms: &Terms,
-    theta: &[Vec<f64>],
-    m: &[f64],
+    at: &Evaluated,
     looked: &[usize],
     want_pred: bool,
     skip: &[bool],
 ) -> (Vec<f64>, f64) {
+    let m = at.m;
     let ds = ctx.ds;
     let (len, n) = (ds.len(), ds.n);
     let r = cfg.floor();
@@ -225,7 +257,7 @@ fn predict(
             let mut srow = 0.0;
             for (c, gc) in gs.iter_mut().enumerate() {
                 let k = row * cols + c;
-                let z = terms.z(&theta[k], k, i, j);
+                let z = at.z(k, i, j, !want_pred);
                 let g = (m[i] * z).max(1e-12);
                 *gc = g / (1.0 + r * g);
                 srow += *gc;
