@@ -54,6 +54,9 @@ pub struct Context<'a> {
     pub(crate) observed: ObservedCache,
     /// Readings taken out as one-frame spikes (see [`crate::noise::spikes`]).
     pub spikes: usize,
+    /// How much sparser than usual the parameter search looks and runs the effects' states
+    /// (1; more in the screening view, see [`Context::coarser`]).
+    pub coarse: usize,
 }
 
 /// A few [`Observed`]s by what they depend on.
@@ -140,6 +143,30 @@ impl<'a> Context<'a> {
             force_model,
             observed: Mutex::new(Vec::new()),
             spikes,
+            coarse: 1,
+        }
+    }
+
+    /// The same recording with the parameter search `factor` times sparser (its grid of the
+    /// effects' states too): the candidates' screening view. Held-out predictions still cover
+    /// every sample, so its held-out results compare with the full view's.
+    pub fn coarser(&self, factor: usize) -> Context<'a> {
+        Context {
+            ds: self.ds,
+            g_obs: self.g_obs.clone(),
+            dom_obs: self.dom_obs.clone(),
+            usable: self.usable.clone(),
+            trial_shift: self.trial_shift.clone(),
+            block: self.block.clone(),
+            n_blocks: self.n_blocks,
+            creep_tau_max: self.creep_tau_max,
+            hyst_r_max: self.hyst_r_max,
+            load_scale: self.load_scale.clone(),
+            force_deadband: self.force_deadband,
+            force_model: self.force_model.clone(),
+            observed: Mutex::new(Vec::new()),
+            spikes: self.spikes,
+            coarse: self.coarse * factor.max(1),
         }
     }
 
@@ -149,7 +176,7 @@ impl<'a> Context<'a> {
     /// predictions use every sample).
     pub fn search_stride(&self) -> usize {
         let by_rate = ((1.0 / self.ds.dt() / 50.0).round() as usize).max(1);
-        let s = by_rate.max(self.ds.len().div_ceil(SEARCH_SAMPLES));
+        let s = by_rate.max(self.ds.len().div_ceil(SEARCH_SAMPLES)) * self.coarse;
         // A multiple of the state stride, so the fit's samples lie on the states' grid.
         s.div_ceil(self.state_stride()) * self.state_stride()
     }
@@ -159,7 +186,7 @@ impl<'a> Context<'a> {
     /// [`STATE_SAMPLES`] (a 10-minute recording at 100 Hz: every second sample, 50 Hz). The
     /// held-out predictions and the final fit run them on every sample.
     pub fn state_stride(&self) -> usize {
-        self.ds.len().div_ceil(STATE_SAMPLES).max(1)
+        self.ds.len().div_ceil(STATE_SAMPLES).max(1) * self.coarse
     }
 
     pub fn fold(&self, i: usize) -> usize {

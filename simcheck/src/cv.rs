@@ -43,13 +43,24 @@ impl Cv {
 
 /// Two-fold cross-validation: fit on one fold's blocks, predict the other.
 pub fn cross_validate(ctx: &Context, starts: &[Config], params: &[Param], max_evals: usize) -> Cv {
+    cross_validate_from(ctx, [starts, starts], params, max_evals)
+}
+
+/// [`cross_validate`] with each fold's own starting points (a fit of the same model on that
+/// fold's training half, for one: never one fitted on the half it predicts).
+pub fn cross_validate_from(
+    ctx: &Context,
+    starts: [&[Config]; 2],
+    params: &[Param],
+    max_evals: usize,
+) -> Cv {
     let ds = ctx.ds;
     let n = ds.n;
     let mut resid = vec![0.0; ds.len() * n];
     let mut fits = Vec::with_capacity(2);
     let fold = |f: usize| -> (Config, Eval) {
         let train = |i: usize| ctx.fold(i) != f;
-        let cfg = fit(ctx, starts, params, &train, max_evals);
+        let cfg = fit(ctx, starts[f], params, &train, max_evals);
         let ev = evaluate_held_out(ctx, &cfg, &train);
         (cfg, ev)
     };

@@ -15,6 +15,10 @@ use crate::numeric::{hat, nnls, solve_spd};
 pub struct Observed {
     g2: Vec<f64>,
     wgt: Vec<f64>,
+    /// The reading in the residual domain, and whether it is usable, in the same order (the
+    /// training SSE reads them; the full arrays are read at a stride that misses the cache).
+    dom: Vec<f64>,
+    usable: Vec<bool>,
 }
 
 /// What [`Observed`] depends on: the samples (their count, first and sum) and the floor and
@@ -59,6 +63,8 @@ impl Observed {
         let (rows, cols) = (ds.rows, ds.cols);
         let mut g2 = vec![0.0; fit_idx.len() * n];
         let mut wgt = vec![0.0; fit_idx.len() * n];
+        let mut dom = vec![0.0; fit_idx.len() * n];
+        let mut usable = vec![false; fit_idx.len() * n];
         for (j, &i) in fit_idx.iter().enumerate() {
             for row in 0..rows {
                 let base = i * n + row * cols;
@@ -70,6 +76,9 @@ impl Observed {
                 let xf = (1.0 - rs * srow).max(0.05);
                 for c in 0..cols {
                     let idx = base + c;
+                    let at = (row * cols + c) * fit_idx.len() + j;
+                    dom[at] = ctx.dom_obs[idx];
+                    usable[at] = ctx.usable[idx];
                     let g1 = ctx.g_obs[idx] / xf;
                     let rg = r * g1;
                     if !ctx.usable[idx] || rg >= 0.9 {
@@ -82,7 +91,18 @@ impl Observed {
                 }
             }
         }
-        Observed { g2, wgt }
+        Observed {
+            g2,
+            wgt,
+            dom,
+            usable,
+        }
+    }
+
+    /// Node `k`'s reading in the residual domain at the `j`-th of the `m` samples, when usable.
+    pub(super) fn dom(&self, k: usize, j: usize, m: usize) -> Option<f64> {
+        let at = k * m + j;
+        self.usable[at].then(|| self.dom[at])
     }
 }
 
@@ -131,7 +151,6 @@ impl NodeFit<'_> {
     /// segment for the power law; see [`crate::law::RowMap`]).
     pub(super) fn node(&self, k: usize, m: &[f64]) -> (Vec<f64>, Locals) {
         let ds = self.ctx.ds;
-        let n = ds.n;
         let lay = &self.terms.lay;
         let pdim = lay.dim();
         let vdim = self.terms.vdim();
@@ -167,7 +186,7 @@ impl NodeFit<'_> {
                     if !d.is_finite() || d == 0.0 {
                         continue;
                     }
-                    (zh + (self.ctx.dom_obs[i * n + k] - f0) / d, d * d)
+                    (zh + (self.obs.dom[base + j] - f0) / d, d * d)
                 };
                 let (sa, rb) = (
                     &mut s_loc[seg * vdim * vdim..(seg + 1) * vdim * vdim],

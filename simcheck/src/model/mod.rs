@@ -141,6 +141,7 @@ fn evaluate_inner(
         Vec::new()
     };
     let at = Evaluated {
+        obs: &obs,
         terms: &terms,
         theta: &theta,
         m: &m,
@@ -203,6 +204,7 @@ fn apply_latent(ctx: &Context, knots: &[f64], values: &[f64], m: &mut [f64]) {
 /// What an evaluation's per-node fit left for the prediction: the regressors, each node's
 /// parameters, the thermal factor and each node's local regressors at the fit's samples.
 struct Evaluated<'a> {
+    obs: &'a Observed,
     terms: &'a Terms,
     theta: &'a [Vec<f64>],
     m: &'a [f64],
@@ -264,12 +266,11 @@ fn predict(
             }
             let xf = (1.0 - rs * srow).max(0.05);
             for (c, gc) in gs.iter().enumerate() {
-                let idx = i * n + row * cols + c;
                 let v = ds.map.dom(ds.map.from_g(gc * xf));
                 if want_pred {
                     out.push(v);
-                } else if ctx.usable[idx] {
-                    sse += (v - ctx.dom_obs[idx]).powi(2);
+                } else if let Some(y) = at.obs.dom(row * cols + c, j, looked.len()) {
+                    sse += (v - y).powi(2);
                 }
             }
         };
