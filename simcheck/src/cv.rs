@@ -318,6 +318,23 @@ mod tests {
     use super::*;
 
     #[test]
+    fn each_fold_starts_from_its_own_starting_points() {
+        // Readings that follow a power law of the presses' force; nothing searched, so each
+        // fold's fit is its own start, never the other fold's.
+        let mut ds = crate::testdata::presses();
+        ds.y = ds.force.iter().map(|f| 1e3 / (1.0 + f.powf(1.3))).collect();
+        let ctx = Context::new(&ds);
+        let (a, b) = (Config::base(1.2, 0.0), Config::base(1.6, 0.0));
+        let cv = cross_validate_from(&ctx, [&[a], &[b]], &[], 10);
+        assert_eq!(cv.fits[0].exponent, 1.2);
+        assert_eq!(cv.fits[1].exponent, 1.6);
+        // The common-start form is the same test with one list for both folds.
+        let same = cross_validate(&ctx, &[Config::base(1.3, 0.0)], &[], 10);
+        assert_eq!((same.fits[0].exponent, same.fits[1].exponent), (1.3, 1.3));
+        assert!(same.sse < cv.sse, "{} {}", same.sse, cv.sse);
+    }
+
+    #[test]
     fn block_t_and_sign_test_see_consistent_gains_only() {
         let before = vec![10.0; 24];
         let better: Vec<f64> = (0..24).map(|i| 9.0 + 0.01 * i as f64).collect();

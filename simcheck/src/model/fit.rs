@@ -15,10 +15,32 @@ use crate::numeric::{hat, nnls, solve_spd};
 pub struct Observed {
     g2: Vec<f64>,
     wgt: Vec<f64>,
-    /// The reading in the residual domain, and whether it is usable, in the same order (the
-    /// training SSE reads them; the full arrays are read at a stride that misses the cache).
+    /// The readings at the same samples in the same order.
+    readings: std::sync::Arc<Readings>,
+}
+
+/// The reading in the residual domain, and whether it is usable, at the fit's samples node by
+/// node (the training SSE reads them; the full sample-major arrays are read at a stride that
+/// misses the cache). They depend on the samples only, so every [`Observed`] of the same
+/// samples shares them.
+struct Readings {
     dom: Vec<f64>,
     usable: Vec<bool>,
+}
+
+impl Readings {
+    fn new(ctx: &Context, fit_idx: &[usize]) -> Readings {
+        let (n, m) = (ctx.ds.n, fit_idx.len());
+        let mut dom = vec![0.0; m * n];
+        let mut usable = vec![false; m * n];
+        for (j, &i) in fit_idx.iter().enumerate() {
+            for k in 0..n {
+                dom[k * m + j] = ctx.dom_obs[i * n + k];
+                usable[k * m + j] = ctx.usable[i * n + k];
+            }
+        }
+        Readings { dom, usable }
+    }
 }
 
 /// What [`Observed`] depends on: the samples (their count, first and sum) and the floor and
@@ -40,12 +62,19 @@ impl Observed {
             cfg.floor().to_bits(),
             cfg.crosstalk.unwrap_or(0.0).to_bits(),
         );
+        let mut readings = None;
         if let Ok(cache) = ctx.observed.lock() {
             if let Some((_, o)) = cache.iter().find(|(k, _)| *k == key) {
                 return o.clone();
             }
+            let same_samples = |k: &ObservedKey| k.0 == key.0 && k.1 == key.1 && k.2 == key.2;
+            readings = cache
+                .iter()
+                .find(|(k, _)| same_samples(k))
+                .map(|(_, o)| o.readings.clone());
         }
-        let o = std::sync::Arc::new(Observed::new(ctx, cfg, fit_idx));
+        let readings = readings.unwrap_or_else(|| std::sync::Arc::new(Readings::new(ctx, fit_idx)));
+        let o = std::sync::Arc::new(Observed::new(ctx, cfg, fit_idx, readings));
         if let Ok(mut cache) = ctx.observed.lock() {
             if cache.len() >= 8 {
                 cache.remove(0);
@@ -55,7 +84,12 @@ impl Observed {
         o
     }
 
-    fn new(ctx: &Context, cfg: &Config, fit_idx: &[usize]) -> Observed {
+    fn new(
+        ctx: &Context,
+        cfg: &Config,
+        fit_idx: &[usize],
+        readings: std::sync::Arc<Readings>,
+    ) -> Observed {
         let ds = ctx.ds;
         let n = ds.n;
         let r = cfg.floor();
@@ -63,8 +97,6 @@ impl Observed {
         let (rows, cols) = (ds.rows, ds.cols);
         let mut g2 = vec![0.0; fit_idx.len() * n];
         let mut wgt = vec![0.0; fit_idx.len() * n];
-        let mut dom = vec![0.0; fit_idx.len() * n];
-        let mut usable = vec![false; fit_idx.len() * n];
         for (j, &i) in fit_idx.iter().enumerate() {
             for row in 0..rows {
                 let base = i * n + row * cols;
@@ -76,9 +108,6 @@ impl Observed {
                 let xf = (1.0 - rs * srow).max(0.05);
                 for c in 0..cols {
                     let idx = base + c;
-                    let at = (row * cols + c) * fit_idx.len() + j;
-                    dom[at] = ctx.dom_obs[idx];
-                    usable[at] = ctx.usable[idx];
                     let g1 = ctx.g_obs[idx] / xf;
                     let rg = r * g1;
                     if !ctx.usable[idx] || rg >= 0.9 {
@@ -91,18 +120,13 @@ impl Observed {
                 }
             }
         }
-        Observed {
-            g2,
-            wgt,
-            dom,
-            usable,
-        }
+        Observed { g2, wgt, readings }
     }
 
     /// Node `k`'s reading in the residual domain at the `j`-th of the `m` samples, when usable.
     pub(super) fn dom(&self, k: usize, j: usize, m: usize) -> Option<f64> {
         let at = k * m + j;
-        self.usable[at].then(|| self.dom[at])
+        self.readings.usable[at].then(|| self.readings.dom[at])
     }
 }
 
@@ -186,7 +210,7 @@ impl NodeFit<'_> {
                     if !d.is_finite() || d == 0.0 {
                         continue;
                     }
-                    (zh + (self.obs.dom[base + j] - f0) / d, d * d)
+                    (zh + (self.obs.readings.dom[base + j] - f0) / d, d * d)
                 };
                 let (sa, rb) = (
                     &mut s_loc[seg * vdim * vdim..(seg + 1) * vdim * vdim],

@@ -74,9 +74,6 @@ fn evaluate_inner(
     let stride = stride.max(1);
     let ds = ctx.ds;
     let (len, n) = (ds.len(), ds.n);
-    let mut dt: Vec<f64> = Vec::with_capacity(len);
-    dt.push(ds.dt());
-    dt.extend(ds.t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
     // The samples the per-node fit looks at.
     let fit_idx: Vec<usize> = (0..len).step_by(stride).filter(|&i| train(i)).collect();
     // The effects' states run on every sample, or, in the search on a long recording, on every
@@ -88,7 +85,7 @@ fn evaluate_inner(
         1
     };
     let mut terms = Terms::new(ctx, cfg, &fit_idx, want_pred, step);
-    let (mut m, mut latent) = thermal_factor(ctx, cfg, &dt);
+    let (mut m, mut latent) = thermal_factor(ctx, cfg);
     if cfg.thermal_gain_only && latent.is_none() {
         // The drift scales the force term only: it joins the sensitivity.
         for (s, mi) in terms.sens.iter_mut().zip(m.iter_mut()) {
@@ -161,11 +158,7 @@ fn evaluate_inner(
 /// The thermal factor per sample from the recorded temperature, or all ones and the latent
 /// knots (fitted with the nodes) when the drift is latent.
 #[allow(clippy::type_complexity)]
-fn thermal_factor(
-    ctx: &Context,
-    cfg: &Config,
-    dt: &[f64],
-) -> (Vec<f64>, Option<(Vec<f64>, Vec<f64>)>) {
+fn thermal_factor(ctx: &Context, cfg: &Config) -> (Vec<f64>, Option<(Vec<f64>, Vec<f64>)>) {
     let ds = ctx.ds;
     let len = ds.len();
     let mut m = vec![1.0; len];
@@ -174,7 +167,10 @@ fn thermal_factor(
         Some(Thermal::Recorded { alpha_per_k, tau_s }) => {
             if let Some(temp) = &ds.temp {
                 let t0 = temp.iter().sum::<f64>() / len as f64;
-                let ts = lowpass(temp, dt, *tau_s);
+                let mut dt: Vec<f64> = Vec::with_capacity(len);
+                dt.push(ds.dt());
+                dt.extend(ds.t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
+                let ts = lowpass(temp, &dt, *tau_s);
                 for (mi, t) in m.iter_mut().zip(&ts) {
                     *mi = (1.0 + alpha_per_k * (t - t0)).max(0.05);
                 }
