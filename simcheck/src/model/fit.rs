@@ -2,6 +2,8 @@
 //! the crosstalk and the floor (kept between evaluations), the normal equations per node, and
 //! the common factors fitted with the nodes (a latent drift, per-trial sensitivities).
 
+use std::sync::Arc;
+
 use super::terms::Terms;
 use crate::context::Context;
 use crate::data::ReadoutMap;
@@ -140,7 +142,7 @@ pub(super) struct Locals {
 }
 
 impl Locals {
-    fn new(terms: &Terms, k: usize, fit_idx: &[usize]) -> Locals {
+    pub(super) fn new(terms: &Terms, k: usize, fit_idx: &[usize]) -> Locals {
         let vdim = terms.vdim();
         let mut seg = Vec::with_capacity(fit_idx.len());
         let mut v = vec![0.0; fit_idx.len() * vdim];
@@ -164,6 +166,9 @@ pub(super) struct NodeFit<'a> {
     /// The samples fitted on.
     pub(super) fit_idx: &'a [usize],
     pub(super) r: f64,
+    /// Every node's local regressors, when they are the same for every node (see
+    /// [`Terms::node_independent`]): computed once, not once per node.
+    pub(super) shared: Option<Arc<Locals>>,
 }
 
 impl NodeFit<'_> {
@@ -173,7 +178,7 @@ impl NodeFit<'_> {
     /// weights would favour the highest-resistance samples). The normal equations are summed
     /// per knot segment over the local regressors and then mapped to the full row (one
     /// segment for the power law; see [`crate::law::RowMap`]).
-    pub(super) fn node(&self, k: usize, m: &[f64]) -> (Vec<f64>, Locals) {
+    pub(super) fn node(&self, k: usize, m: &[f64]) -> (Vec<f64>, Arc<Locals>) {
         let ds = self.ctx.ds;
         let lay = &self.terms.lay;
         let pdim = lay.dim();
@@ -186,7 +191,10 @@ impl NodeFit<'_> {
         };
         let mut th = vec![0.0; pdim];
         let base = k * self.fit_idx.len();
-        let locals = Locals::new(self.terms, k, self.fit_idx);
+        let locals = match &self.shared {
+            Some(l) => l.clone(),
+            None => Arc::new(Locals::new(self.terms, k, self.fit_idx)),
+        };
         for pass in 0..=gn_passes {
             let mut s_loc = vec![0.0; segments * vdim * vdim];
             let mut r_loc = vec![0.0; segments * vdim];

@@ -174,6 +174,12 @@ impl Loads {
         }
     }
 
+    /// Whether every node reads the same load series (no hysteresis in each node's own load
+    /// path, no scan skew).
+    pub(super) fn shared(&self) -> bool {
+        self.loads.len() == 1 && self.slopes.is_empty()
+    }
+
     /// The force-law term `p` (the power law) or the load (a spline) of node `k` at sample `i`
     /// (a multiple of `step`), the `jj`-th the fit looks at.
     pub(super) fn at(&self, k: usize, i: usize, jj: usize) -> f64 {

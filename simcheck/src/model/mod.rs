@@ -96,7 +96,7 @@ fn evaluate_inner(
     let obs = Observed::cached(ctx, cfg, &fit_idx);
     let mut gains = cfg.curv_trials.clone();
     let mut theta = vec![vec![0.0; terms.lay.dim()]; n];
-    let mut locals: Vec<Locals> = Vec::new();
+    let mut locals: Vec<std::sync::Arc<Locals>> = Vec::new();
     // A latent drift or per-trial sensitivities are fitted with the nodes, alternately.
     let iterations = if latent.is_some() || gains.is_some() {
         3
@@ -116,6 +116,9 @@ fn evaluate_inner(
             obs: &obs,
             fit_idx: &fit_idx,
             r: cfg.floor(),
+            shared: terms
+                .node_independent()
+                .then(|| std::sync::Arc::new(Locals::new(&terms, 0, &fit_idx))),
         };
         (theta, locals) = crate::parallel::map(n, |k| fit.node(k, &m))
             .into_iter()
@@ -204,7 +207,7 @@ struct Evaluated<'a> {
     terms: &'a Terms,
     theta: &'a [Vec<f64>],
     m: &'a [f64],
-    locals: &'a [Locals],
+    locals: &'a [std::sync::Arc<Locals>],
 }
 
 impl Evaluated<'_> {
