@@ -54,9 +54,18 @@ pub struct Context<'a> {
     pub(crate) observed: ObservedCache,
     /// Readings taken out as one-frame spikes (see [`crate::noise::spikes`]).
     pub spikes: usize,
+    /// The effects' states' grids by step (see [`Context::state_grid`]).
+    grids: Mutex<Vec<(usize, Arc<StateGrid>)>>,
     /// How much sparser than usual the parameter search looks and runs the effects' states
     /// (1; more in the screening view, see [`Context::coarser`]).
     pub coarse: usize,
+}
+
+/// Every `step`-th sample's time (s), interval (s) and model force (N).
+pub struct StateGrid {
+    pub t: Vec<f64>,
+    pub dt: Vec<f64>,
+    pub force: Vec<f64>,
 }
 
 /// A few [`Observed`]s by what they depend on.
@@ -143,6 +152,7 @@ impl<'a> Context<'a> {
             force_model,
             observed: Mutex::new(Vec::new()),
             spikes,
+            grids: Mutex::new(Vec::new()),
             coarse: 1,
         }
     }
@@ -166,6 +176,7 @@ impl<'a> Context<'a> {
             force_model: self.force_model.clone(),
             observed: Mutex::new(Vec::new()),
             spikes: self.spikes,
+            grids: Mutex::new(Vec::new()),
             coarse: self.coarse * factor.max(1),
         }
     }
@@ -187,6 +198,28 @@ impl<'a> Context<'a> {
     /// held-out predictions and the final fit run them on every sample.
     pub fn state_stride(&self) -> usize {
         self.ds.len().div_ceil(STATE_SAMPLES).max(1) * self.coarse
+    }
+
+    /// Every `step`-th sample's time, interval (the first: `step` median steps) and the force
+    /// the model is driven with: the grid the effects' states run on, built once per step.
+    pub fn state_grid(&self, step: usize) -> Arc<StateGrid> {
+        let step = step.max(1);
+        if let Ok(grids) = self.grids.lock() {
+            if let Some((_, g)) = grids.iter().find(|(s, _)| *s == step) {
+                return g.clone();
+            }
+        }
+        let ds = self.ds;
+        let t: Vec<f64> = ds.t.iter().step_by(step).copied().collect();
+        let mut dt: Vec<f64> = Vec::with_capacity(t.len());
+        dt.push(step as f64 * ds.dt());
+        dt.extend(t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
+        let force = self.force_model.iter().step_by(step).copied().collect();
+        let g = Arc::new(StateGrid { t, dt, force });
+        if let Ok(mut grids) = self.grids.lock() {
+            grids.push((step, g.clone()));
+        }
+        g
     }
 
     pub fn fold(&self, i: usize) -> usize {
