@@ -54,6 +54,18 @@ pub struct Context<'a> {
     pub(crate) observed: ObservedCache,
     /// Readings taken out as one-frame spikes (see [`crate::noise::spikes`]).
     pub spikes: usize,
+    /// The effects' states' grids by step (see [`Context::state_grid`]).
+    grids: Mutex<Vec<(usize, Arc<StateGrid>)>>,
+    /// How much sparser than usual the parameter search looks and runs the effects' states
+    /// (1; more in the screening view, see [`Context::coarser`]).
+    pub coarse: usize,
+}
+
+/// Every `step`-th sample's time (s), interval (s) and model force (N).
+pub struct StateGrid {
+    pub t: Vec<f64>,
+    pub dt: Vec<f64>,
+    pub force: Vec<f64>,
 }
 
 /// A few [`Observed`]s by what they depend on.
@@ -140,6 +152,32 @@ impl<'a> Context<'a> {
             force_model,
             observed: Mutex::new(Vec::new()),
             spikes,
+            grids: Mutex::new(Vec::new()),
+            coarse: 1,
+        }
+    }
+
+    /// The same recording with the parameter search `factor` times sparser (its grid of the
+    /// effects' states too): the candidates' screening view. Held-out predictions still cover
+    /// every sample, so its held-out results compare with the full view's.
+    pub fn coarser(&self, factor: usize) -> Context<'a> {
+        Context {
+            ds: self.ds,
+            g_obs: self.g_obs.clone(),
+            dom_obs: self.dom_obs.clone(),
+            usable: self.usable.clone(),
+            trial_shift: self.trial_shift.clone(),
+            block: self.block.clone(),
+            n_blocks: self.n_blocks,
+            creep_tau_max: self.creep_tau_max,
+            hyst_r_max: self.hyst_r_max,
+            load_scale: self.load_scale.clone(),
+            force_deadband: self.force_deadband,
+            force_model: self.force_model.clone(),
+            observed: Mutex::new(Vec::new()),
+            spikes: self.spikes,
+            grids: Mutex::new(Vec::new()),
+            coarse: self.coarse * factor.max(1),
         }
     }
 
@@ -149,7 +187,7 @@ impl<'a> Context<'a> {
     /// predictions use every sample).
     pub fn search_stride(&self) -> usize {
         let by_rate = ((1.0 / self.ds.dt() / 50.0).round() as usize).max(1);
-        let s = by_rate.max(self.ds.len().div_ceil(SEARCH_SAMPLES));
+        let s = by_rate.max(self.ds.len().div_ceil(SEARCH_SAMPLES)) * self.coarse;
         // A multiple of the state stride, so the fit's samples lie on the states' grid.
         s.div_ceil(self.state_stride()) * self.state_stride()
     }
@@ -159,7 +197,29 @@ impl<'a> Context<'a> {
     /// [`STATE_SAMPLES`] (a 10-minute recording at 100 Hz: every second sample, 50 Hz). The
     /// held-out predictions and the final fit run them on every sample.
     pub fn state_stride(&self) -> usize {
-        self.ds.len().div_ceil(STATE_SAMPLES).max(1)
+        self.ds.len().div_ceil(STATE_SAMPLES).max(1) * self.coarse
+    }
+
+    /// Every `step`-th sample's time, interval (the first: `step` median steps) and the force
+    /// the model is driven with: the grid the effects' states run on, built once per step.
+    pub fn state_grid(&self, step: usize) -> Arc<StateGrid> {
+        let step = step.max(1);
+        if let Ok(grids) = self.grids.lock() {
+            if let Some((_, g)) = grids.iter().find(|(s, _)| *s == step) {
+                return g.clone();
+            }
+        }
+        let ds = self.ds;
+        let t: Vec<f64> = ds.t.iter().step_by(step).copied().collect();
+        let mut dt: Vec<f64> = Vec::with_capacity(t.len());
+        dt.push(step as f64 * ds.dt());
+        dt.extend(t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
+        let force = self.force_model.iter().step_by(step).copied().collect();
+        let g = Arc::new(StateGrid { t, dt, force });
+        if let Ok(mut grids) = self.grids.lock() {
+            grids.push((step, g.clone()));
+        }
+        g
     }
 
     pub fn fold(&self, i: usize) -> usize {

@@ -214,6 +214,16 @@ pub struct Dataset {
     /// Readings, sample-major (`i * n + k`).
     pub y: Vec<f64>,
     pub map: ReadoutMap,
+    /// The median time step and the peak force, computed when first asked for (every
+    /// evaluation of the forward model asks; `t` and `force` do not change once read).
+    pub(crate) stats: Stats,
+}
+
+/// What [`Dataset::dt`] and [`Dataset::max_force`] computed, kept.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Stats {
+    dt: std::sync::OnceLock<f64>,
+    max_force: std::sync::OnceLock<f64>,
 }
 
 /// Makes the readout agree with the readings' direction (they rise or fall with force) as far
@@ -447,6 +457,7 @@ impl Dataset {
                 trial_recorded: rec.trial.is_some(),
                 y: rec.nodes,
                 map,
+                stats: Stats::default(),
             },
             note,
         ))
@@ -454,12 +465,7 @@ impl Dataset {
 
     /// Median time step (s).
     pub fn dt(&self) -> f64 {
-        let mut d: Vec<f64> = self.t.windows(2).map(|w| w[1] - w[0]).collect();
-        if d.is_empty() {
-            return 0.01;
-        }
-        d.sort_by(f64::total_cmp);
-        d[d.len() / 2].max(1e-6)
+        *self.stats.dt.get_or_init(|| median_step(&self.t))
     }
 
     pub fn duration(&self) -> f64 {
@@ -467,8 +473,21 @@ impl Dataset {
     }
 
     pub fn max_force(&self) -> f64 {
-        self.force.iter().cloned().fold(0.0, f64::max)
+        *self
+            .stats
+            .max_force
+            .get_or_init(|| self.force.iter().cloned().fold(0.0, f64::max))
     }
+}
+
+/// The median interval of the times `t` (0.01 s when there is none).
+fn median_step(t: &[f64]) -> f64 {
+    let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    if d.is_empty() {
+        return 0.01;
+    }
+    d.sort_by(f64::total_cmp);
+    d[d.len() / 2].max(1e-6)
 }
 
 #[cfg(test)]

@@ -8,10 +8,10 @@ use std::time::Instant;
 use serde::Serialize;
 use taxel_sim::SensorModel;
 
-use crate::candidates::{applicable, candidates, n_params};
+use crate::candidates::{applicable, candidates, n_params, ParamCount};
 use crate::checks::signature_check;
 use crate::context::Context;
-use crate::cv::{compare, cross_validate, Cv, Verdict};
+use crate::cv::{compare, cross_validate, cross_validate_from, Cv, Verdict};
 use crate::data::Dataset;
 use crate::effects::{Config, EffectKind};
 use crate::forms::max_scan_skew;
@@ -27,6 +27,10 @@ pub use crate::unexplained::Unexplained;
 
 /// A variant of a candidate effect: its starting points and searched parameters.
 type Variant = (Vec<Config>, Vec<Param>);
+
+/// A candidate held out: its cross-validation, verdict, and whether the verdict is the
+/// screening's.
+type Tested = (Cv, Verdict, bool);
 
 /// The best candidate of a round: effect, its cross-validation and verdict.
 type Best = (EffectKind, Cv, Verdict);
@@ -60,6 +64,9 @@ pub struct Trial {
     pub verdict: Verdict,
     /// Time spent testing it (s).
     pub seconds: f64,
+    /// The verdict is the screening's (see [`crate::screen`]): the candidate was not worth the
+    /// full held-out test.
+    pub screened: bool,
 }
 
 /// Everything the diagnosis found (report.json is this, plus file names).
@@ -126,6 +133,8 @@ pub fn diagnose_with(
         step: 0,
         of: 1,
     });
+    let whole = crate::timing::span("diagnosis");
+    let sp = crate::timing::span("start model");
     let ctx = Context::new(ds);
     let ev_n = opts.max_evals;
     let cfg0 = start_config(&ctx, start);
@@ -138,8 +147,10 @@ pub fn diagnose_with(
             skipped.push((e.name().to_string(), why.to_string()));
         }
     }
+    let screen = ctx.coarser(crate::screen::FACTOR);
     let mut sel = Selection {
         ctx: &ctx,
+        screen: &screen,
         ev_n,
         cfg0,
         cur: start_fit,
@@ -151,19 +162,26 @@ pub fn diagnose_with(
         spline_m: SPLINE_SIZES[0],
         progress,
     };
+    drop(sp);
     // Round 0: the static law (saturation against the start model's law, then the flexible
     // law). What the effects are tested against is the best static law.
+    let sp = crate::timing::span("round 0: static law");
     sel.static_law();
+    drop(sp);
     let base = sel.cur.clone();
     let base_cv = sel.cur_cv.clone();
     let base_eval = evaluate(&ctx, &base, &|_| true);
     let base_findings = locate(&ctx, &base_cv.resid, &base_eval.pred);
     for round in 1..=opts.max_effects {
+        let _sp = crate::timing::span(format!("round {round}"));
         if !sel.round(round) {
             break;
         }
     }
+    let sp = crate::timing::span("backward pass");
     let mut contributions = sel.backward();
+    drop(sp);
+    let sp = crate::timing::span("final model, SIM.toml law, findings");
     let Selection {
         mut cur,
         cur_cv,
@@ -190,7 +208,7 @@ pub fn diagnose_with(
     }
     let final_eval = evaluate(&ctx, &cur, &|_| true);
     let final_findings = locate(&ctx, &cur_cv.resid, &final_eval.pred);
-    let (sim_cfg, sim_theta) = power_summary(&ctx, &cur, &final_eval, ev_n);
+    let (sim_cfg, sim_theta) = crate::simlaw::power_summary(&ctx, &cur, &final_eval, ev_n);
     let responsiveness = crate::locate::responsiveness(&ctx, &final_eval.pred);
     let effects: Vec<NamedEffect> = cur
         .effects()
@@ -224,6 +242,8 @@ pub fn diagnose_with(
         &noise,
         opts.unexplained_ratio,
     );
+    drop(sp);
+    drop(whole);
     let verdict = if !unexplained.is_empty() {
         "unexplained"
     } else if effects.is_empty() {
@@ -286,38 +306,6 @@ fn law_of(cfg: &Config) -> usize {
     }
 }
 
-/// The final model with the simulator's power law, for SIM.toml: the model itself when its law
-/// is the power law; else the same effects with the power law's exponent (and the floor, when
-/// the model has one) fitted on the whole recording (the effects' parameters kept), and its
-/// per-node parameters.
-/// An asymmetric Bouc-Wen loop is refitted symmetric (its saturation, exponent and share), the
-/// only Bouc-Wen taxel-sim runs; report.json keeps the asymmetry the tool fitted.
-fn power_summary(
-    ctx: &Context,
-    cur: &Config,
-    ev: &crate::model::Eval,
-    ev_n: usize,
-) -> (Config, Vec<Vec<f64>>) {
-    let asymmetric = cur.hyst_bouc_wen && cur.hyst_bw_asym != 0.0;
-    if cur.law == Law::Power && !asymmetric {
-        return (cur.clone(), ev.theta.clone());
-    }
-    let power = Config {
-        law: Law::Power,
-        hyst_bw_asym: 0.0,
-        ..cur.clone()
-    };
-    let mut params = base_params(&power);
-    if asymmetric {
-        // taxel-sim's Bouc-Wen is symmetric: its saturation, exponent and share refitted so.
-        params.extend([Param::HystLnR, Param::HystLnN, Param::HystShare]);
-    }
-    let evals = if asymmetric { 3 * ev_n } else { ev_n };
-    let fitted = fit_all(ctx, std::slice::from_ref(&power), &params, evals);
-    let theta = evaluate(ctx, &fitted, &|_| true).theta;
-    (fitted, theta)
-}
-
 /// The base model the search starts from: the start model's exponent and resistance floor.
 /// The floor must leave room for the highest conductance recorded (a floor above the lowest
 /// recorded resistance would make every loaded sample unreachable).
@@ -341,6 +329,8 @@ fn start_config(ctx: &Context, start: &SensorModel) -> Config {
 /// candidate tested so far.
 struct Selection<'a> {
     ctx: &'a Context<'a>,
+    /// The screening view of the recording (see [`crate::screen`]).
+    screen: &'a Context<'a>,
     ev_n: usize,
     /// The start model's base configuration.
     cfg0: Config,
@@ -379,7 +369,7 @@ impl Selection<'_> {
                 continue;
             }
             let tc = Instant::now();
-            let Some((cv, v)) = self.best_variant(e) else {
+            let Some((cv, v, screened)) = self.best_variant(e) else {
                 continue;
             };
             self.trials.push(Trial {
@@ -387,6 +377,7 @@ impl Selection<'_> {
                 effect: e.name().to_string(),
                 verdict: v,
                 seconds: tc.elapsed().as_secs_f64(),
+                screened,
             });
             if v.accepted {
                 let before = self.cur_cv.clone();
@@ -442,6 +433,7 @@ impl Selection<'_> {
             ),
             verdict: v,
             seconds: tc.elapsed().as_secs_f64(),
+            screened: false,
         });
         if v.accepted {
             self.join(&cv.fits);
@@ -504,14 +496,17 @@ impl Selection<'_> {
                 of: todo.len(),
             });
             let tc = Instant::now();
-            let Some((cv, v)) = self.best_variant(e) else {
+            let sp = crate::timing::span(format!("  test {}", e.name()));
+            let Some((cv, v, screened)) = self.best_variant(e) else {
                 continue;
             };
+            drop(sp);
             self.trials.push(Trial {
                 round,
                 effect: e.name().to_string(),
                 verdict: v,
                 seconds: tc.elapsed().as_secs_f64(),
+                screened,
             });
             if v.accepted && best.as_ref().is_none_or(|b| v.rel_gain > b.2.rel_gain) {
                 best = Some((e, cv, v));
@@ -521,6 +516,7 @@ impl Selection<'_> {
             return false;
         };
         let before = self.cur_cv.clone();
+        let _sp = crate::timing::span(format!("join {}", e.name()));
         self.join(&cv.fits);
         self.last = Some((e, before));
         true
@@ -529,30 +525,46 @@ impl Selection<'_> {
     /// Effect `e`'s variants (a latent drift's resolutions, the hysteresis forms, ...) held out
     /// against the current model: the accepted one with the best held-out fit, or, when none
     /// is accepted, the one the criterion likes best.
-    fn best_variant(&self, e: EffectKind) -> Option<(Cv, Verdict)> {
+    fn best_variant(&self, e: EffectKind) -> Option<Tested> {
         let ds = self.ctx.ds;
-        let mut tried: Option<(Cv, Verdict)> = None;
+        let mut tried: Option<Tested> = None;
         for (starts, params) in self.finalists(e) {
             let Some(first) = starts.first() else {
                 continue;
             };
-            let k = n_params(first, e);
-            let cv = cross_validate(self.ctx, &starts, &params, self.ev_n);
-            let mut v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
+            let (cv, mut v, screened) = self.held_out(&starts, &params, n_params(first, e));
             signature_check(ds, e, &self.cur_cv, &cv, &mut v);
             // Among the variants the rule accepts, the best held-out fit; else the one the
             // criterion likes best (for the report).
-            let better = |t: &(Cv, Verdict)| match (v.accepted, t.1.accepted) {
+            let better = |t: &Tested| match (v.accepted, t.1.accepted) {
                 (true, false) => true,
                 (false, true) => false,
                 (true, true) => v.rel_gain > t.1.rel_gain,
                 (false, false) => v.ic_gain > t.1.ic_gain,
             };
             if tried.as_ref().is_none_or(better) {
-                tried = Some((cv, v));
+                tried = Some((cv, v, screened));
             }
         }
         tried
+    }
+
+    /// A variant held out against the current model: first in the screening view (see
+    /// [`crate::screen`]), then, when the screen leaves it worth one, the full test, whose
+    /// verdict alone can accept. True when the verdict is the screen's.
+    fn held_out(&self, starts: &[Config], params: &[Param], k: ParamCount) -> Tested {
+        let cv = cross_validate(self.screen, starts, params, self.ev_n);
+        let v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
+        if !crate::screen::worth_full_test(&v) {
+            return (cv, v, true);
+        }
+        // Each fold's search starts where the screen's ended on the same training half.
+        let [a, b] = &cv.fits;
+        let from = [std::slice::from_ref(a), std::slice::from_ref(b)];
+        let evals = crate::screen::full_evals(self.ev_n);
+        let cv = cross_validate_from(self.ctx, from, params, evals);
+        let v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
+        (cv, v, false)
     }
 
     /// Effect `e`'s variants worth holding out: all of them when there are two or fewer; else
@@ -739,6 +751,7 @@ impl Selection<'_> {
             effect: format!("static_law (back to the power law from the spline, {m} per node)"),
             verdict: v,
             seconds: 0.0,
+            screened: false,
         });
         self.cur = fit_all(
             ctx,

@@ -35,8 +35,11 @@ pub mod parallel;
 pub mod preisach;
 pub mod refworld;
 pub mod report;
+pub mod screen;
 pub mod search;
+pub mod simlaw;
 #[cfg(test)]
 mod testdata;
+pub mod timing;
 pub mod unexplained;
 pub mod zoo;

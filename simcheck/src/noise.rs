@@ -237,16 +237,19 @@ impl NoiseModel {
             return self.nodes.iter().map(Parts::total).sum::<f64>() / n.max(1) as f64;
         }
         let c = &self.common;
-        let mut q = 0.0;
-        let mut col = vec![0.0; len];
-        for (k, p) in self.nodes.iter().enumerate() {
-            col.iter_mut()
-                .enumerate()
-                .for_each(|(i, x)| *x = d[i * n + k]);
+        // Each node's share computed on its own (on two threads when free), summed in node
+        // order: the result does not depend on the split.
+        let per_node = crate::parallel::map(self.nodes.len(), |k| {
+            let p = &self.nodes[k];
+            let col: Vec<f64> = (0..len).map(|i| d[i * n + k]).collect();
             let own: f64 = col.iter().map(|v| v * v).sum();
-            q += (p.white - c.white).max(0.0) * own
+            (p.white - c.white).max(0.0) * own
                 + (p.fast - c.fast).max(0.0) * ar_quadratic(&col, p.rho_fast)
-                + (p.slow - c.slow).max(0.0) * ar_quadratic(&col, p.rho_slow);
+                + (p.slow - c.slow).max(0.0) * ar_quadratic(&col, p.rho_slow)
+        });
+        let mut q = 0.0;
+        for v in per_node {
+            q += v;
         }
         if c.total() > 0.0 {
             let sum: Vec<f64> = (0..len)
@@ -270,13 +273,11 @@ impl NoiseModel {
         let (len, n) = (ds.len(), ds.n);
         let big = ((1.0 / ds.dt()).round() as usize).clamp(3, (len / 8).max(3));
         let lags = [0, 1, 2, big, 2 * big];
-        let nodes: Vec<Parts> = (0..n)
-            .map(|k| {
-                let x: Vec<f64> = (0..len).map(|i| resid[i * n + k]).collect();
-                let keep: Vec<bool> = (0..len).map(|i| ctx.usable[i * n + k]).collect();
-                parts(&autocov(&x, &keep, &lags), big)
-            })
-            .collect();
+        let nodes: Vec<Parts> = crate::parallel::map(n, |k| {
+            let x: Vec<f64> = (0..len).map(|i| resid[i * n + k]).collect();
+            let keep: Vec<bool> = (0..len).map(|i| ctx.usable[i * n + k]).collect();
+            parts(&autocov(&x, &keep, &lags), big)
+        });
         let mean: Vec<f64> = (0..len)
             .map(|i| (0..n).map(|k| resid[i * n + k]).sum::<f64>() / n as f64)
             .collect();

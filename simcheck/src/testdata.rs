@@ -39,5 +39,6 @@ pub fn presses() -> Dataset {
         trial_recorded: false,
         y: vec![0.0; len],
         map: ReadoutMap::Resistance,
+        stats: Default::default(),
     }
 }

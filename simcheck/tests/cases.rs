@@ -202,3 +202,29 @@ fn the_floor_comes_back_once_the_effect_that_hid_it_is_named() {
         d.final_cfg.r_floor_ohm
     );
 }
+
+#[test]
+fn only_candidates_that_remove_next_to_nothing_stop_at_the_screen() {
+    use taxel_simcheck::data::Dataset;
+    use taxel_simcheck::diagnose::{diagnose, Options};
+    use taxel_simcheck::refworld::generate;
+    let rec = generate(Case::Hysteresis, 1, 300.0);
+    let start = taxel_sim::SensorModel::default();
+    let (ds, _) = Dataset::from_recording(rec, 4, 4, &start.readout, true).expect("dataset");
+    let d = diagnose(&ds, &start, &Options::default());
+    assert!(d.effects.iter().any(|e| e.name == "hysteresis"));
+    // Some candidate stopped at the screen (an effect the recording does not have), none of
+    // those was accepted or removed as much as the screen's bar, and every accepted one had the
+    // full test.
+    assert!(d.trials.iter().any(|t| t.screened), "nothing screened");
+    for t in &d.trials {
+        if t.screened {
+            assert!(!t.verdict.accepted, "{} accepted by the screen", t.effect);
+            assert!(t.verdict.rel_gain < taxel_simcheck::screen::MIN_GAIN);
+        }
+    }
+    assert!(d
+        .trials
+        .iter()
+        .any(|t| t.effect == "hysteresis" && t.verdict.accepted && !t.screened));
+}

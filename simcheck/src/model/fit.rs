@@ -2,6 +2,8 @@
 //! the crosstalk and the floor (kept between evaluations), the normal equations per node, and
 //! the common factors fitted with the nodes (a latent drift, per-trial sensitivities).
 
+use std::sync::Arc;
+
 use super::terms::Terms;
 use crate::context::Context;
 use crate::data::ReadoutMap;
@@ -15,6 +17,32 @@ use crate::numeric::{hat, nnls, solve_spd};
 pub struct Observed {
     g2: Vec<f64>,
     wgt: Vec<f64>,
+    /// The readings at the same samples in the same order.
+    readings: std::sync::Arc<Readings>,
+}
+
+/// The reading in the residual domain, and whether it is usable, at the fit's samples node by
+/// node (the training SSE reads them; the full sample-major arrays are read at a stride that
+/// misses the cache). They depend on the samples only, so every [`Observed`] of the same
+/// samples shares them.
+struct Readings {
+    dom: Vec<f64>,
+    usable: Vec<bool>,
+}
+
+impl Readings {
+    fn new(ctx: &Context, fit_idx: &[usize]) -> Readings {
+        let (n, m) = (ctx.ds.n, fit_idx.len());
+        let mut dom = vec![0.0; m * n];
+        let mut usable = vec![false; m * n];
+        for (j, &i) in fit_idx.iter().enumerate() {
+            for k in 0..n {
+                dom[k * m + j] = ctx.dom_obs[i * n + k];
+                usable[k * m + j] = ctx.usable[i * n + k];
+            }
+        }
+        Readings { dom, usable }
+    }
 }
 
 /// What [`Observed`] depends on: the samples (their count, first and sum) and the floor and
@@ -36,12 +64,19 @@ impl Observed {
             cfg.floor().to_bits(),
             cfg.crosstalk.unwrap_or(0.0).to_bits(),
         );
+        let mut readings = None;
         if let Ok(cache) = ctx.observed.lock() {
             if let Some((_, o)) = cache.iter().find(|(k, _)| *k == key) {
                 return o.clone();
             }
+            let same_samples = |k: &ObservedKey| k.0 == key.0 && k.1 == key.1 && k.2 == key.2;
+            readings = cache
+                .iter()
+                .find(|(k, _)| same_samples(k))
+                .map(|(_, o)| o.readings.clone());
         }
-        let o = std::sync::Arc::new(Observed::new(ctx, cfg, fit_idx));
+        let readings = readings.unwrap_or_else(|| std::sync::Arc::new(Readings::new(ctx, fit_idx)));
+        let o = std::sync::Arc::new(Observed::new(ctx, cfg, fit_idx, readings));
         if let Ok(mut cache) = ctx.observed.lock() {
             if cache.len() >= 8 {
                 cache.remove(0);
@@ -51,7 +86,12 @@ impl Observed {
         o
     }
 
-    fn new(ctx: &Context, cfg: &Config, fit_idx: &[usize]) -> Observed {
+    fn new(
+        ctx: &Context,
+        cfg: &Config,
+        fit_idx: &[usize],
+        readings: std::sync::Arc<Readings>,
+    ) -> Observed {
         let ds = ctx.ds;
         let n = ds.n;
         let r = cfg.floor();
@@ -82,7 +122,39 @@ impl Observed {
                 }
             }
         }
-        Observed { g2, wgt }
+        Observed { g2, wgt, readings }
+    }
+
+    /// Node `k`'s reading in the residual domain at the `j`-th of the `m` samples, when usable.
+    pub(super) fn dom(&self, k: usize, j: usize, m: usize) -> Option<f64> {
+        let at = k * m + j;
+        self.readings.usable[at].then(|| self.readings.dom[at])
+    }
+}
+
+/// One node's local regressors (see [`Terms::local`]) at each sample the fit looks at, computed
+/// once per evaluation: the fit's passes and the training SSE read them (the law's basis and the
+/// loads are most of an evaluation's time).
+pub(super) struct Locals {
+    seg: Vec<usize>,
+    v: Vec<f64>,
+    vdim: usize,
+}
+
+impl Locals {
+    pub(super) fn new(terms: &Terms, k: usize, fit_idx: &[usize]) -> Locals {
+        let vdim = terms.vdim();
+        let mut seg = Vec::with_capacity(fit_idx.len());
+        let mut v = vec![0.0; fit_idx.len() * vdim];
+        for (j, (&i, out)) in fit_idx.iter().zip(v.chunks_exact_mut(vdim)).enumerate() {
+            seg.push(terms.local(k, i, j, out));
+        }
+        Locals { seg, v, vdim }
+    }
+
+    /// The segment and local values at the `j`-th sample the fit looks at.
+    pub(super) fn at(&self, j: usize) -> (usize, &[f64]) {
+        (self.seg[j], &self.v[j * self.vdim..(j + 1) * self.vdim])
     }
 }
 
@@ -94,6 +166,9 @@ pub(super) struct NodeFit<'a> {
     /// The samples fitted on.
     pub(super) fit_idx: &'a [usize],
     pub(super) r: f64,
+    /// Every node's local regressors, when they are the same for every node (see
+    /// [`Terms::node_independent`]): computed once, not once per node.
+    pub(super) shared: Option<Arc<Locals>>,
 }
 
 impl NodeFit<'_> {
@@ -103,9 +178,8 @@ impl NodeFit<'_> {
     /// weights would favour the highest-resistance samples). The normal equations are summed
     /// per knot segment over the local regressors and then mapped to the full row (one
     /// segment for the power law; see [`crate::law::RowMap`]).
-    pub(super) fn node(&self, k: usize, m: &[f64]) -> Vec<f64> {
+    pub(super) fn node(&self, k: usize, m: &[f64]) -> (Vec<f64>, Arc<Locals>) {
         let ds = self.ctx.ds;
-        let n = ds.n;
         let lay = &self.terms.lay;
         let pdim = lay.dim();
         let vdim = self.terms.vdim();
@@ -116,8 +190,11 @@ impl NodeFit<'_> {
             2
         };
         let mut th = vec![0.0; pdim];
-        let mut v = vec![0.0; vdim];
         let base = k * self.fit_idx.len();
+        let locals = match &self.shared {
+            Some(l) => l.clone(),
+            None => Arc::new(Locals::new(self.terms, k, self.fit_idx)),
+        };
         for pass in 0..=gn_passes {
             let mut s_loc = vec![0.0; segments * vdim * vdim];
             let mut r_loc = vec![0.0; segments * vdim];
@@ -127,11 +204,11 @@ impl NodeFit<'_> {
                     continue;
                 }
                 let mi = m[i];
-                let seg = self.terms.local(k, i, j, &mut v);
+                let (seg, v) = locals.at(j);
                 let (z, w) = if pass == 0 {
                     (self.obs.g2[base + j] / mi, w * mi * mi)
                 } else {
-                    let zh = self.terms.z_local(&th, seg, &v).max(1e-15);
+                    let zh = self.terms.z_local(&th, seg, v).max(1e-15);
                     let dom_of = |z: f64| {
                         let g = (mi * z).max(1e-15);
                         ds.map.dom(ds.map.from_g(g / (1.0 + self.r * g)))
@@ -141,13 +218,13 @@ impl NodeFit<'_> {
                     if !d.is_finite() || d == 0.0 {
                         continue;
                     }
-                    (zh + (self.ctx.dom_obs[i * n + k] - f0) / d, d * d)
+                    (zh + (self.obs.readings.dom[base + j] - f0) / d, d * d)
                 };
                 let (sa, rb) = (
                     &mut s_loc[seg * vdim * vdim..(seg + 1) * vdim * vdim],
                     &mut r_loc[seg * vdim..(seg + 1) * vdim],
                 );
-                accumulate(sa, rb, &v, w, z);
+                accumulate(sa, rb, v, w, z);
             }
             let mut a = vec![0.0; pdim * pdim];
             let mut b = vec![0.0; pdim];
@@ -168,7 +245,7 @@ impl NodeFit<'_> {
             }
             th = self.solve(&mut a, &mut b);
         }
-        th
+        (th, locals)
     }
 
     /// The per-node normal equations solved: the power law as before (least squares, and a

@@ -2,7 +2,7 @@
 //! (hysteresis as play operators, a Bouc-Wen state or Preisach relays; creep's low-pass; scan
 //! skew's time shift), per node when the hysteresis acts on each node's own load.
 
-use crate::context::Context;
+use crate::context::{Context, StateGrid};
 use crate::effects::Config;
 use crate::forms::{bouc_wen_load, load_series, Knee};
 use crate::law::Law;
@@ -26,36 +26,29 @@ pub(super) struct Loads {
     compact: bool,
 }
 
-/// The grid the effects' states run on: every `step`-th sample's time, interval, force and
-/// whether the fit needs its load (all when `None`).
-struct Grid<'a> {
+/// The grid the effects' states run on: every `step`-th sample's time, interval and force
+/// (kept in the context, see [`Context::state_grid`]) and whether the fit needs its load (all
+/// when `None`).
+struct Grid {
     /// The force above which creep that stays with the load counts the load as on.
     on_n: f64,
-    t: Vec<f64>,
-    dt: Vec<f64>,
-    force: std::borrow::Cow<'a, [f64]>,
+    base: std::sync::Arc<StateGrid>,
     need: Option<Vec<bool>>,
 }
 
-impl<'a> Grid<'a> {
-    fn new(ctx: &'a Context, need: Option<&[bool]>, step: usize) -> Grid<'a> {
-        let ds = ctx.ds;
-        let t: Vec<f64> = ds.t.iter().step_by(step).copied().collect();
-        let mut dt: Vec<f64> = Vec::with_capacity(t.len());
-        dt.push(step as f64 * ds.dt());
-        dt.extend(t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
-        let f = &ctx.force_model;
-        let force = if step == 1 {
-            std::borrow::Cow::Borrowed(&f[..])
-        } else {
-            std::borrow::Cow::Owned(f.iter().step_by(step).copied().collect())
-        };
+impl std::ops::Deref for Grid {
+    type Target = StateGrid;
+    fn deref(&self) -> &StateGrid {
+        &self.base
+    }
+}
+
+impl Grid {
+    fn new(ctx: &Context, need: Option<&[bool]>, step: usize) -> Grid {
         let need = need.map(|m| m.iter().step_by(step).copied().collect());
         Grid {
-            on_n: 0.05 * ds.max_force(),
-            t,
-            dt,
-            force,
+            on_n: 0.05 * ctx.ds.max_force(),
+            base: ctx.state_grid(step),
             need,
         }
     }
@@ -172,6 +165,12 @@ impl Loads {
             step,
             compact,
         }
+    }
+
+    /// Whether every node reads the same load series (no hysteresis in each node's own load
+    /// path, no scan skew).
+    pub(super) fn shared(&self) -> bool {
+        self.loads.len() == 1 && self.slopes.is_empty()
     }
 
     /// The force-law term `p` (the power law) or the load (a spline) of node `k` at sample `i`

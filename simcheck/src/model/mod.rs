@@ -19,7 +19,7 @@ use crate::context::Context;
 use crate::effects::{Config, Thermal};
 pub use crate::numeric::{centre_by_level, play_gap, solve_spd};
 use crate::numeric::{hat, lowpass};
-use fit::NodeFit;
+use fit::{Locals, NodeFit};
 use terms::Terms;
 
 /// Result of one evaluation.
@@ -70,12 +70,10 @@ fn evaluate_inner(
     want_pred: bool,
     held_out_only: bool,
 ) -> Eval {
+    crate::timing::count_eval();
     let stride = stride.max(1);
     let ds = ctx.ds;
     let (len, n) = (ds.len(), ds.n);
-    let mut dt: Vec<f64> = Vec::with_capacity(len);
-    dt.push(ds.dt());
-    dt.extend(ds.t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
     // The samples the per-node fit looks at.
     let fit_idx: Vec<usize> = (0..len).step_by(stride).filter(|&i| train(i)).collect();
     // The effects' states run on every sample, or, in the search on a long recording, on every
@@ -87,7 +85,7 @@ fn evaluate_inner(
         1
     };
     let mut terms = Terms::new(ctx, cfg, &fit_idx, want_pred, step);
-    let (mut m, mut latent) = thermal_factor(ctx, cfg, &dt);
+    let (mut m, mut latent) = thermal_factor(ctx, cfg);
     if cfg.thermal_gain_only && latent.is_none() {
         // The drift scales the force term only: it joins the sensitivity.
         for (s, mi) in terms.sens.iter_mut().zip(m.iter_mut()) {
@@ -98,6 +96,7 @@ fn evaluate_inner(
     let obs = Observed::cached(ctx, cfg, &fit_idx);
     let mut gains = cfg.curv_trials.clone();
     let mut theta = vec![vec![0.0; terms.lay.dim()]; n];
+    let mut locals: Vec<std::sync::Arc<Locals>> = Vec::new();
     // A latent drift or per-trial sensitivities are fitted with the nodes, alternately.
     let iterations = if latent.is_some() || gains.is_some() {
         3
@@ -117,8 +116,13 @@ fn evaluate_inner(
             obs: &obs,
             fit_idx: &fit_idx,
             r: cfg.floor(),
+            shared: terms
+                .node_independent()
+                .then(|| std::sync::Arc::new(Locals::new(&terms, 0, &fit_idx))),
         };
-        theta = crate::parallel::map(n, |k| fit.node(k, &m));
+        (theta, locals) = crate::parallel::map(n, |k| fit.node(k, &m))
+            .into_iter()
+            .unzip();
         if it + 1 == iterations {
             break;
         }
@@ -136,7 +140,14 @@ fn evaluate_inner(
     } else {
         Vec::new()
     };
-    let (pred, train_sse) = predict(ctx, cfg, &terms, &theta, &m, looked, want_pred, &skip);
+    let at = Evaluated {
+        obs: &obs,
+        terms: &terms,
+        theta: &theta,
+        m: &m,
+        locals: &locals,
+    };
+    let (pred, train_sse) = predict(ctx, cfg, &at, looked, want_pred, &skip);
     Eval {
         pred,
         theta,
@@ -150,11 +161,7 @@ fn evaluate_inner(
 /// The thermal factor per sample from the recorded temperature, or all ones and the latent
 /// knots (fitted with the nodes) when the drift is latent.
 #[allow(clippy::type_complexity)]
-fn thermal_factor(
-    ctx: &Context,
-    cfg: &Config,
-    dt: &[f64],
-) -> (Vec<f64>, Option<(Vec<f64>, Vec<f64>)>) {
+fn thermal_factor(ctx: &Context, cfg: &Config) -> (Vec<f64>, Option<(Vec<f64>, Vec<f64>)>) {
     let ds = ctx.ds;
     let len = ds.len();
     let mut m = vec![1.0; len];
@@ -163,7 +170,10 @@ fn thermal_factor(
         Some(Thermal::Recorded { alpha_per_k, tau_s }) => {
             if let Some(temp) = &ds.temp {
                 let t0 = temp.iter().sum::<f64>() / len as f64;
-                let ts = lowpass(temp, dt, *tau_s);
+                let mut dt: Vec<f64> = Vec::with_capacity(len);
+                dt.push(ds.dt());
+                dt.extend(ds.t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
+                let ts = lowpass(temp, &dt, *tau_s);
                 for (mi, t) in m.iter_mut().zip(&ts) {
                     *mi = (1.0 + alpha_per_k * (t - t0)).max(0.05);
                 }
@@ -190,20 +200,43 @@ fn apply_latent(ctx: &Context, knots: &[f64], values: &[f64], m: &mut [f64]) {
     }
 }
 
+/// What an evaluation's per-node fit left for the prediction: the regressors, each node's
+/// parameters, the thermal factor and each node's local regressors at the fit's samples.
+struct Evaluated<'a> {
+    obs: &'a Observed,
+    terms: &'a Terms,
+    theta: &'a [Vec<f64>],
+    m: &'a [f64],
+    locals: &'a [std::sync::Arc<Locals>],
+}
+
+impl Evaluated<'_> {
+    /// Node `k`'s conductance before the thermal factor at sample `i`, the `j`-th the fit looked
+    /// at when `fitted` (read from its local regressors).
+    fn z(&self, k: usize, i: usize, j: usize, fitted: bool) -> f64 {
+        match self.locals.get(k) {
+            Some(l) if fitted => {
+                let (seg, v) = l.at(j);
+                self.terms.z_local(&self.theta[k], seg, v)
+            }
+            _ => self.terms.z(&self.theta[k], k, i, j),
+        }
+    }
+}
+
 /// The forward prediction of every sample (with `want_pred`; 0 where `skip` holds), or only the
-/// SSE over the samples in `looked`. Rows are independent (crosstalk couples the nodes of a row): each
-/// row's SSE is summed over samples in order and the rows' sums in row order.
-#[allow(clippy::too_many_arguments)]
+/// SSE over the samples in `looked` (the fit's samples). Rows are independent (crosstalk couples
+/// the nodes of a row): each row's SSE is summed over samples in order and the rows' sums in row
+/// order.
 fn predict(
     ctx: &Context,
     cfg: &Config,
-    terms: &Terms,
-    theta: &[Vec<f64>],
-    m: &[f64],
+    at: &Evaluated,
     looked: &[usize],
     want_pred: bool,
     skip: &[bool],
 ) -> (Vec<f64>, f64) {
+    let m = at.m;
     let ds = ctx.ds;
     let (len, n) = (ds.len(), ds.n);
     let r = cfg.floor();
@@ -225,19 +258,18 @@ fn predict(
             let mut srow = 0.0;
             for (c, gc) in gs.iter_mut().enumerate() {
                 let k = row * cols + c;
-                let z = terms.z(&theta[k], k, i, j);
+                let z = at.z(k, i, j, !want_pred);
                 let g = (m[i] * z).max(1e-12);
                 *gc = g / (1.0 + r * g);
                 srow += *gc;
             }
             let xf = (1.0 - rs * srow).max(0.05);
             for (c, gc) in gs.iter().enumerate() {
-                let idx = i * n + row * cols + c;
                 let v = ds.map.dom(ds.map.from_g(gc * xf));
                 if want_pred {
                     out.push(v);
-                } else if ctx.usable[idx] {
-                    sse += (v - ctx.dom_obs[idx]).powi(2);
+                } else if let Some(y) = at.obs.dom(row * cols + c, j, looked.len()) {
+                    sse += (v - y).powi(2);
                 }
             }
         };

@@ -61,6 +61,12 @@ impl Terms {
         }
     }
 
+    /// Whether every node's local regressors are the same (one load series for every node,
+    /// no per-node scan lag): the nodes differ in their parameters only.
+    pub(super) fn node_independent(&self) -> bool {
+        self.loads.shared()
+    }
+
     /// The number of local values (see [`Terms::local`]).
     pub(super) fn vdim(&self) -> usize {
         self.lay.law_start() + if self.basis.is_some() { 3 } else { 1 }

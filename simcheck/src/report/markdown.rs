@@ -182,7 +182,11 @@ fn candidates(s: &mut String, d: &Diagnosis) {
             v.rank_z,
             100.0 * v.blocks_improved,
             v.ic_gain,
-            if v.accepted { "yes" } else { "no" },
+            match (v.accepted, t.screened) {
+                (true, _) => "yes",
+                (false, false) => "no",
+                (false, true) => "no (screen)",
+            },
             t.seconds,
         );
     }

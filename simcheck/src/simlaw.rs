@@ -1,0 +1,40 @@
+//! The model SIM.toml is written from: the diagnosis's final model with the simulator's own
+//! static law (the power law) and its own hysteresis forms.
+
+use crate::context::Context;
+use crate::effects::Config;
+use crate::law::Law;
+use crate::model::evaluate;
+use crate::search::{base_params, fit_all, Param};
+
+/// The final model with the simulator's power law, for SIM.toml: the model itself when its law
+/// is the power law; else the same effects with the power law's exponent (and the floor, when
+/// the model has one) fitted on the whole recording (the effects' parameters kept), and its
+/// per-node parameters.
+/// An asymmetric Bouc-Wen loop is refitted symmetric (its saturation, exponent and share), the
+/// only Bouc-Wen taxel-sim runs; report.json keeps the asymmetry the tool fitted.
+pub fn power_summary(
+    ctx: &Context,
+    cur: &Config,
+    ev: &crate::model::Eval,
+    ev_n: usize,
+) -> (Config, Vec<Vec<f64>>) {
+    let asymmetric = cur.hyst_bouc_wen && cur.hyst_bw_asym != 0.0;
+    if cur.law == Law::Power && !asymmetric {
+        return (cur.clone(), ev.theta.clone());
+    }
+    let power = Config {
+        law: Law::Power,
+        hyst_bw_asym: 0.0,
+        ..cur.clone()
+    };
+    let mut params = base_params(&power);
+    if asymmetric {
+        // taxel-sim's Bouc-Wen is symmetric: its saturation, exponent and share refitted so.
+        params.extend([Param::HystLnR, Param::HystLnN, Param::HystShare]);
+    }
+    let evals = if asymmetric { 3 * ev_n } else { ev_n };
+    let fitted = fit_all(ctx, std::slice::from_ref(&power), &params, evals);
+    let theta = evaluate(ctx, &fitted, &|_| true).theta;
+    (fitted, theta)
+}
