@@ -14,12 +14,13 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
 use iceoryx2::service::messaging_pattern::MessagingPattern;
-use taxel_msgs::{sensor_id_bytes, RawFrame, Stream};
+use taxel_msgs::{RawFrame, Stream};
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::now_ns;
 use taxel_testkit::Proc;
 
-const BRIDGE: &str = env!("CARGO_BIN_EXE_taxel-bridge");
+mod common;
+use common::{args, frame, free_port, percentile_us, Cleanup, BRIDGE};
 
 /// Frames measured.
 const FRAMES: u64 = 2000;
@@ -30,47 +31,9 @@ const PERIOD: Duration = Duration::from_millis(1);
 /// reported.
 const MAX_LOST: u64 = FRAMES / 200;
 
-/// Starts `taxel-bridge args...` (outside any TAXEL_PREFIX of the environment).
-fn spawn(name: &str, args: &[&str]) -> Proc {
-    let mut cmd = Command::new(BRIDGE);
-    cmd.args(args).env_remove("TAXEL_PREFIX");
-    Proc::start(name, cmd)
-}
-
-/// Removes what dead nodes of the test's prefixes left and the prefixes' management segments,
-/// also when an assertion failed (declared first, so it drops after the children are killed).
-struct Cleanup(Vec<String>);
-
-impl Drop for Cleanup {
-    fn drop(&mut self) {
-        for p in &self.0 {
-            let _ = taxel_runtime::ipc::clean_dead_nodes(p);
-            let _ = taxel_runtime::ipc::release_prefix(p);
-        }
-    }
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("a free port")
-        .port()
-}
-
-fn frame(seq: u64) -> RawFrame {
-    let mut f = RawFrame::ZERO;
-    f.seq = seq;
-    f.sensor = sensor_id_bytes("glove0").expect("id");
-    f.rows = 4;
-    f.cols = 4;
-    f.counts[0] = seq as f32;
-    f.t_capture_ns = now_ns();
-    f
-}
-
-fn percentile(sorted: &[u64], q: f64) -> f64 {
-    let i = ((sorted.len() as f64 - 1.0) * q / 100.0).round() as usize;
-    sorted[i] as f64 / 1000.0
+/// Starts `taxel-bridge args...` on this host.
+fn spawn(name: &str, a: &[&str]) -> Proc {
+    common::spawn(name, None, &args(a))
 }
 
 /// What domain B's subscriber saw of the measured frames.
@@ -269,10 +232,10 @@ fn frames_cross_between_two_domains_in_order_without_echo() {
         r.seqs.len(),
         lost as f64 * 100.0 / FRAMES as f64,
         r.wakeups,
-        percentile(&ages, 50.0),
-        percentile(&ages, 90.0),
-        percentile(&ages, 99.0),
-        percentile(&ages, 100.0),
+        percentile_us(&ages, 50.0),
+        percentile_us(&ages, 90.0),
+        percentile_us(&ages, 99.0),
+        percentile_us(&ages, 100.0),
     );
     let mut gaps = Vec::new();
     let mut expect = first;
