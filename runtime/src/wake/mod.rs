@@ -212,6 +212,87 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     }
 }
 
+/// Receives the samples of several streams in one WaitSet (event wake-up), every stream's
+/// listener attached, until shutdown or `until`: each sample goes to `on_sample` with the
+/// caller's `state`, the index of its stream in `subs` and its arrival time; `on_tick` gets the
+/// state about every `tick` (1 ms ..= 100 ms). A woken attachment is found by binary search over the attachment ids sorted once,
+/// so a wake-up costs no allocation of ours and O(log n) per stream that fired. Stops at the
+/// first error `on_sample` or `on_tick` returns.
+pub fn receive_many<T, S, E>(
+    subs: &[StreamSubscriber<T>],
+    until: Option<Instant>,
+    tick: Duration,
+    shutdown: &Shutdown,
+    state: &mut S,
+    mut on_sample: impl FnMut(&mut S, usize, &T, u64) -> Result<(), E>,
+    mut on_tick: impl FnMut(&mut S) -> Result<(), E>,
+) -> Result<(), E>
+where
+    T: std::fmt::Debug + ZeroCopySend + Copy + 'static,
+    S: ?Sized,
+    E: From<IpcError>,
+{
+    let tick_every = tick.clamp(Duration::from_millis(1), ipc::TICK);
+    let ws = ipc::waitset()?;
+    let mut guards = Vec::with_capacity(subs.len());
+    for sub in subs {
+        guards.push(
+            ws.attach_notification(sub.listener())
+                .map_err(|e| IpcError {
+                    what: format!("attach {}", sub.name()),
+                    detail: format!("{e:?}"),
+                })?,
+        );
+    }
+    let mut index: Vec<(WaitSetAttachmentId<iceoryx2::service::ipc::Service>, usize)> = guards
+        .iter()
+        .enumerate()
+        .map(|(i, g)| (WaitSetAttachmentId::from_guard(g), i))
+        .collect();
+    index.sort_unstable_by(|a, b| a.0.cmp(&b.0));
+    let mut last_tick = Instant::now();
+    let mut failure: Option<E> = None;
+    while !shutdown.requested() && until.is_none_or(|u| Instant::now() < u) {
+        ws.wait_and_process_once_with_timeout(
+            |id| {
+                if let Ok(k) = index.binary_search_by(|(a, _)| a.cmp(&id)) {
+                    let i = index[k].1;
+                    let t = now_ns();
+                    let r = subs[i].drain(|v| {
+                        if failure.is_none() {
+                            if let Err(e) = on_sample(state, i, v, t) {
+                                failure = Some(e);
+                            }
+                        }
+                    });
+                    if let Err(e) = r {
+                        failure.get_or_insert(e.into());
+                    }
+                }
+                if failure.is_some() {
+                    CallbackProgression::Stop
+                } else {
+                    CallbackProgression::Continue
+                }
+            },
+            tick_every,
+        )
+        .map_err(|e| IpcError {
+            what: "waitset".into(),
+            detail: format!("{e:?}"),
+        })?;
+        if let Some(e) = failure {
+            return Err(e);
+        }
+        if last_tick.elapsed() >= tick_every {
+            on_tick(state)?;
+            last_tick = Instant::now();
+        }
+    }
+    drop(guards);
+    Ok(())
+}
+
 /// The newest sample a poll handed on: its (sequence number, capture time) and when it was
 /// received (ns), or None when no sample waited.
 pub type Newest = Option<((u64, u64), u64)>;
