@@ -2,10 +2,12 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 
 use clap::{Parser, Subcommand};
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
+use taxel_runtime::sensors::{process_name, resolve_opt, sensor_list, PerSensor};
 use taxel_runtime::Shutdown;
 use tracing::info;
 
@@ -27,7 +29,7 @@ pub struct Args {
 
 #[derive(Debug, Subcommand)]
 pub enum Cmd {
-    /// Run the estimator process for one sensor.
+    /// Run the estimator process for one sensor or several.
     Run(RunArgs),
     /// Train a curvature model from recordings with a curvature_m1 column.
     Train(TrainArgs),
@@ -109,12 +111,13 @@ pub struct DatasetArgs {
 
 #[derive(Debug, clap::Args)]
 pub struct RunArgs {
-    /// Sensor id.
+    /// Sensor id, or several (`a,b,c`): one process serves them all, each on its own services.
     #[arg(long, default_value = "s0")]
     pub sensor: String,
-    /// Curvature of the mounting surface to publish (1/m).
-    #[arg(long, default_value_t = 0.0)]
-    pub curvature_m1: f64,
+    /// Curvature of the mounting surface to publish (1/m): one for every sensor, or one per
+    /// sensor (`40,55,`; an empty entry is 0).
+    #[arg(long)]
+    pub curvature_m1: Option<PerSensor<f64>>,
     /// Frames per no-load window.
     #[arg(long, default_value_t = DetectorConfig::default().window_frames)]
     pub window_frames: usize,
@@ -146,9 +149,10 @@ pub struct RunArgs {
     #[arg(long, default_value_t = DetectorConfig::default().rebaseline_load_s)]
     pub rebaseline_load_s: f64,
     /// Curvature model file (from `train`); without it the configured --curvature-m1 is used.
-    /// The file is watched: a valid replacement is used from the next no-load window on.
+    /// The file is watched: a valid replacement is used from the next no-load window on. One
+    /// for every sensor, or one per sensor (`a.taxcrv,,b.taxcrv`; an empty entry: none).
     #[arg(long)]
-    pub model: Option<PathBuf>,
+    pub model: Option<PerSensor<PathBuf>>,
 }
 
 pub fn main(args: Args) -> ExitCode {
@@ -163,13 +167,11 @@ pub fn main(args: Args) -> ExitCode {
 }
 
 fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
-    taxel_msgs::sensor_id_bytes(&a.sensor).config_err()?;
-    if !(a.curvature_m1.is_finite() && a.curvature_m1 >= 0.0) {
-        return Err(Failure::config(anyhow::anyhow!(
-            "--curvature-m1 must be a finite number >= 0, got {}",
-            a.curvature_m1
-        )));
-    }
+    let bad = |e: String| Failure::config(anyhow::anyhow!(e));
+    let names = sensor_list("--sensor", &a.sensor).map_err(bad)?;
+    let n = names.len();
+    let curvatures = resolve_opt(&a.curvature_m1, "--curvature-m1", n).map_err(bad)?;
+    let model_paths = resolve_opt(&a.model, "--model", n).map_err(bad)?;
     let detector = DetectorConfig {
         window_frames: a.window_frames,
         steady_ratio: a.steady_ratio,
@@ -185,19 +187,46 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
         .validate()
         .map_err(|e| anyhow::anyhow!(e))
         .config_err()?;
-    let model = match &a.model {
-        Some(p) => Some(CurvatureModel::load(p).config_err()?),
-        None => None,
-    };
-    let cfg = crate::run::Config {
-        sensor: a.sensor.clone(),
-        curvature_m1: a.curvature_m1,
-        detector,
-        model,
-        model_path: a.model.clone(),
-    };
+    // Each distinct model file is loaded once and shared by the sensors that name it.
+    let mut loaded: Vec<(PathBuf, Arc<CurvatureModel>)> = Vec::new();
+    let mut sensors = Vec::with_capacity(n);
+    for (i, name) in names.iter().enumerate() {
+        let at = if n == 1 {
+            String::new()
+        } else {
+            format!("sensor {name:?}: ")
+        };
+        let c = curvatures[i].unwrap_or(0.0);
+        if !(c.is_finite() && c >= 0.0) {
+            return Err(bad(format!(
+                "{at}--curvature-m1 must be a finite number >= 0, got {c}"
+            )));
+        }
+        let model = match &model_paths[i] {
+            Some(p) => match loaded.iter().find(|(q, _)| q == p) {
+                Some((_, m)) => Some(m.clone()),
+                None => {
+                    let m = Arc::new(
+                        CurvatureModel::load(p)
+                            .map_err(|e| anyhow::anyhow!("{at}{e}"))
+                            .config_err()?,
+                    );
+                    loaded.push((p.clone(), m.clone()));
+                    Some(m)
+                }
+            },
+            None => None,
+        };
+        sensors.push(crate::run::SensorConfig {
+            sensor: name.clone(),
+            curvature_m1: c,
+            model,
+            model_path: model_paths[i].clone(),
+        });
+    }
+    let cfg = crate::run::Config { sensors, detector };
     let shutdown = Shutdown::install().runtime_err()?;
-    let ipc = Ipc::open(&common.prefix, &format!("estimator-{}", a.sensor)).runtime_err()?;
+    let ipc = Ipc::open(&common.prefix, &process_name("estimator", &names)).runtime_err()?;
     let s = crate::run::run(&ipc, &cfg, &shutdown).runtime_err()?;
     info!(
         sensor = %a.sensor,

@@ -16,7 +16,7 @@ use crate::model::{CurvatureModel, ModelError, Predictor};
 /// Turns raw frames into curvature estimates.
 pub struct Estimator<'m> {
     detector: BaselineDetector,
-    model: Option<(&'m CurvatureModel, Predictor<'m>)>,
+    model: Option<Predictor<'m>>,
     configured_m1: f64,
     est: Box<CurvatureEstimate>,
     /// Curvature, its sd and flags, from the window after the last mounting.
@@ -28,17 +28,27 @@ pub struct Estimator<'m> {
 impl<'m> Estimator<'m> {
     /// The detector judges in the log domain when the model's readout is a resistance.
     pub fn new(
-        mut detector: DetectorConfig,
+        detector: DetectorConfig,
         model: Option<&'m CurvatureModel>,
         configured_m1: f64,
     ) -> Estimator<'m> {
-        if let Some(r) = model.and_then(|m| m.readout.as_ref()) {
+        Estimator::with_predictor(detector, model.map(|m| m.predictor()), configured_m1)
+    }
+
+    /// Like [`Estimator::new`], predicting with `predictor` (e.g. a clone of a shared one:
+    /// [`CurvatureModel::shared_predictor`]).
+    pub fn with_predictor(
+        mut detector: DetectorConfig,
+        predictor: Option<Predictor<'m>>,
+        configured_m1: f64,
+    ) -> Estimator<'m> {
+        if let Some(r) = predictor.as_ref().and_then(|p| p.model().readout.as_ref()) {
             detector.log_domain = r.log_domain();
             detector.rises = Some(r.rises);
         }
         Estimator {
             detector: BaselineDetector::new(detector),
-            model: model.map(|m| (m, m.predictor())),
+            model: predictor,
             configured_m1,
             est: Box::new(CurvatureEstimate::ZERO),
             held: None,
@@ -70,7 +80,8 @@ impl<'m> Estimator<'m> {
             self.checked = true;
             let code = taxel_msgs::raw_flags::readout_code(frame.flags);
             let mut readout_known = false;
-            if let Some((m, _)) = &self.model {
+            if let Some(p) = &self.model {
+                let m = p.model();
                 m.check_nodes("curvature model", frame.n_nodes())?;
                 if let Some(note) = m.check_stream(code, frame.full_scale as f64)? {
                     tracing::info!("{note}");
@@ -102,17 +113,17 @@ impl<'m> Estimator<'m> {
         est.rows = frame.rows;
         est.cols = frame.cols;
         match (self.model.as_mut(), self.held) {
-            (Some((m, _)), Some((c, sd, flags))) if !b.remount => {
+            (Some(p), Some((c, sd, flags))) if !b.remount => {
                 est.curvature_m1 = c;
                 est.curvature_sd_m1 = sd;
-                est.model_version = m.model_version;
+                est.model_version = p.model().model_version;
                 est.flags = flags | curvature_flags::HELD;
             }
-            (Some((m, p)), _) => {
+            (Some(p), _) => {
                 let pr = p.predict(&b.mean);
                 est.curvature_m1 = pr.curvature_m1.max(0.0) as f32;
                 est.curvature_sd_m1 = pr.sd_m1 as f32;
-                est.model_version = m.model_version;
+                est.model_version = p.model().model_version;
                 est.flags = curvature_flags::ESTIMATED;
                 if pr.out_of_range {
                     est.flags |= curvature_flags::OUT_OF_RANGE;

@@ -408,7 +408,12 @@ impl Mlp {
     pub fn to_f32(&self) -> MlpF32 {
         MlpF32 {
             layout: self.layout,
-            p: self.params.iter().map(|&v| v as f32).collect(),
+            p: self
+                .params
+                .iter()
+                .map(|&v| v as f32)
+                .collect::<Vec<_>>()
+                .into(),
             a: vec![0.0; self.layout.h],
             b: vec![0.0; self.layout.h],
             c: vec![0.0; self.layout.h],
@@ -565,11 +570,12 @@ pub fn loss(net: &Mlp, x: &[Vec<f64>], y: &[f64], delta: f64) -> f64 {
         / y.len().max(1) as f64
 }
 
-/// Single-sample inference with f32 weights and preallocated buffers.
+/// Single-sample inference with f32 weights and preallocated buffers. A clone shares the
+/// weights (a shared estimator's sensors predict with one copy) and has its own buffers.
 #[derive(Debug, Clone)]
 pub struct MlpF32 {
     layout: Layout,
-    p: Vec<f32>,
+    p: std::sync::Arc<[f32]>,
     a: Vec<f32>,
     b: Vec<f32>,
     c: Vec<f32>,

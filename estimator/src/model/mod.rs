@@ -9,6 +9,7 @@ pub mod mlp;
 pub mod ridge;
 
 use std::path::Path;
+use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 use taxel_formats::{envelope, Readout};
@@ -530,16 +531,13 @@ impl CurvatureModel {
 
     /// A predictor with preallocated buffers (no allocation per prediction).
     pub fn predictor(&self) -> Predictor<'_> {
-        Predictor {
-            model: self,
-            mlp: match &self.regressor {
-                Regressor::Mlp(m) => Some(m.to_f32()),
-                Regressor::Ridge(_) => None,
-            },
-            scratch: Vec::with_capacity(self.n_nodes),
-            sig: Vec::with_capacity(self.n_nodes),
-            feat: vec![0.0; n_features(self.n_nodes)],
-        }
+        Predictor::of(ModelRef::Borrowed(self))
+    }
+
+    /// A predictor that holds the model by reference count: one loaded model serves every
+    /// sensor of a shared estimator, and clones of the predictor share the weights.
+    pub fn shared_predictor(self: &Arc<Self>) -> Predictor<'static> {
+        Predictor::of(ModelRef::Shared(self.clone()))
     }
 
     /// Predictions for samples (batch; used by eval).
@@ -552,19 +550,58 @@ impl CurvatureModel {
     }
 }
 
-/// Single-baseline inference.
+/// How a predictor holds its model: borrowed (offline tools), or shared by reference count
+/// (the estimator process, whose sensors may share one file and reload it while running).
+#[derive(Debug, Clone)]
+pub enum ModelRef<'a> {
+    Borrowed(&'a CurvatureModel),
+    Shared(Arc<CurvatureModel>),
+}
+
+impl std::ops::Deref for ModelRef<'_> {
+    type Target = CurvatureModel;
+    fn deref(&self) -> &CurvatureModel {
+        match self {
+            ModelRef::Borrowed(m) => m,
+            ModelRef::Shared(m) => m,
+        }
+    }
+}
+
+/// Single-baseline inference. A clone shares the model and its weights and has its own
+/// buffers.
+#[derive(Debug, Clone)]
 pub struct Predictor<'a> {
-    model: &'a CurvatureModel,
+    model: ModelRef<'a>,
     mlp: Option<MlpF32>,
     scratch: Vec<f64>,
     sig: Vec<f64>,
     feat: Vec<f64>,
 }
 
-impl Predictor<'_> {
+impl<'a> Predictor<'a> {
+    fn of(model: ModelRef<'a>) -> Predictor<'a> {
+        let n = model.n_nodes;
+        Predictor {
+            mlp: match &model.regressor {
+                Regressor::Mlp(m) => Some(m.to_f32()),
+                Regressor::Ridge(_) => None,
+            },
+            scratch: Vec::with_capacity(n),
+            sig: Vec::with_capacity(n),
+            feat: vec![0.0; n_features(n)],
+            model,
+        }
+    }
+
+    /// The model it predicts with.
+    pub fn model(&self) -> &CurvatureModel {
+        &self.model
+    }
+
     /// Curvature from a baseline of `n_nodes` readings.
     pub fn predict(&mut self, baseline: &[f64]) -> Prediction {
-        let m = self.model;
+        let m: &CurvatureModel = &self.model;
         signal_of(m.readout.as_ref(), baseline, &mut self.sig);
         raw_features(&self.sig, &mut self.scratch, &mut self.feat);
         m.standardizer.apply(&mut self.feat);
