@@ -9,6 +9,7 @@ use taxel_formats::readout::ReadoutChoice;
 use taxel_formats::Recording;
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
+use taxel_runtime::sensors::{process_name, sensor_list, PerSensor};
 use taxel_runtime::wake::WakeMode;
 use taxel_runtime::Shutdown;
 use tracing::info;
@@ -29,7 +30,7 @@ pub struct Args {
 
 #[derive(Debug, Subcommand)]
 pub enum Cmd {
-    /// Run the calibrator process for one sensor.
+    /// Run the calibrator process for one sensor or several.
     Run(RunArgs),
     /// Fit a calibration file from recording CSVs with force_n (and curvature_m1).
     Fit(FitArgs),
@@ -37,12 +38,13 @@ pub enum Cmd {
 
 #[derive(Debug, clap::Args)]
 pub struct RunArgs {
-    /// Sensor id.
+    /// Sensor id, or several (`a,b,c`): one process serves them all, each on its own services.
     #[arg(long, default_value = "s0")]
     pub sensor: String,
-    /// Calibration file (TOML); reloaded when it changes.
+    /// Calibration file (TOML); reloaded when it changes. One for every sensor, or one per
+    /// sensor (`a.toml,b.toml,c.toml`); each distinct file is loaded and watched once.
     #[arg(long)]
-    pub calibration: PathBuf,
+    pub calibration: PerSensor<PathBuf>,
     /// Flag forces whose curvature estimate (baseline) is older than this (s).
     #[arg(long, default_value_t = 60.0)]
     pub curvature_stale_s: f64,
@@ -52,7 +54,8 @@ pub struct RunArgs {
     /// Array columns.
     #[arg(long)]
     pub cols: Option<usize>,
-    /// How to wait for raw frames: event (default), busy, or adaptive.
+    /// How to wait for raw frames: event (default), busy, or adaptive (one sensor; several wait
+    /// event-driven).
     #[arg(long, value_enum, default_value_t = WakeMode::Event)]
     pub wake: WakeMode,
 }
@@ -130,26 +133,66 @@ pub fn main(args: Args) -> ExitCode {
 }
 
 fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
-    taxel_msgs::sensor_id_bytes(&a.sensor).config_err()?;
+    let bad = |e: String| Failure::config(anyhow::anyhow!(e));
+    let names = sensor_list("--sensor", &a.sensor).map_err(bad)?;
+    let paths = a
+        .calibration
+        .resolve_all("--calibration", names.len())
+        .map_err(bad)?;
     if !(a.curvature_stale_s.is_finite() && a.curvature_stale_s > 0.0) {
         return Err(Failure::config(anyhow::anyhow!(
             "--curvature-stale-s must be a positive number"
         )));
     }
-    let initial = Calibration::load(&a.calibration).config_err()?;
-    if let (Some(r), Some(c)) = (a.rows, a.cols) {
-        load_for(&a.calibration, r, c)
-            .map_err(|e| anyhow::anyhow!(e))
-            .config_err()?;
+    if names.len() > 1 && a.wake != WakeMode::Event {
+        let mode = if a.wake == WakeMode::Busy {
+            "busy"
+        } else {
+            "adaptive"
+        };
+        return Err(bad(format!(
+            "--wake {mode}: several sensors wait event-driven only (drop --wake or serve one sensor)"
+        )));
+    }
+    // Each distinct file is loaded once; a bad one names the sensor(s) it was given for.
+    let mut files: Vec<PathBuf> = Vec::new();
+    let mut initial = Vec::new();
+    let mut sensors = Vec::with_capacity(names.len());
+    for (name, p) in names.iter().zip(&paths) {
+        let at = if names.len() == 1 {
+            String::new()
+        } else {
+            format!("sensor {name:?}: ")
+        };
+        let file = match files.iter().position(|f| f == p) {
+            Some(i) => i,
+            None => {
+                let cal = Calibration::load(p)
+                    .map_err(|e| anyhow::anyhow!("{at}{e}"))
+                    .config_err()?;
+                if let (Some(r), Some(c)) = (a.rows, a.cols) {
+                    load_for(p, r, c)
+                        .map_err(|e| anyhow::anyhow!("{at}{e}"))
+                        .config_err()?;
+                }
+                files.push(p.clone());
+                initial.push(cal);
+                files.len() - 1
+            }
+        };
+        sensors.push(crate::run::SensorConfig {
+            sensor: name.clone(),
+            file,
+        });
     }
     let cfg = crate::run::Config {
-        sensor: a.sensor.clone(),
-        calibration: a.calibration.clone(),
+        sensors,
+        files,
         curvature_stale_s: a.curvature_stale_s,
         wake: a.wake,
     };
     let shutdown = Shutdown::install().runtime_err()?;
-    let ipc = Ipc::open(&common.prefix, &format!("calibrator-{}", a.sensor)).runtime_err()?;
+    let ipc = Ipc::open(&common.prefix, &process_name("calibrator", &names)).runtime_err()?;
     let s = crate::run::run(&ipc, &cfg, initial, &shutdown).runtime_err()?;
     info!(
         sensor = %a.sensor,

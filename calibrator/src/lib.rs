@@ -1,8 +1,9 @@
 //! taxel-calibrator owns force calibration: the calibration file format and its validation
 //! (`calibration`), the model forms it can hold (`forms`), fitting calibrations from recordings
-//! (`fit`), hot reload of the file while the stream runs (`reload`), the dynamic terms and their state (`dynamics`), the figures of a
-//! fit (`plots`), and the calibrator process that turns raw frames plus the latest curvature
-//! estimate into `ForceSample`s (`run`). The offline evaluation that runs it beside the
+//! (`fit`), hot reload of the files while the stream runs (`reload`), the dynamic terms and
+//! their state (`dynamics`), the figures of a fit (`plots`), and the calibrator process that
+//! turns raw frames plus the latest curvature estimate into `ForceSample`s, for one sensor or
+//! many (`run`; each sensor's state in `lane`). The offline evaluation that runs it beside the
 //! estimator lives in taxel-evaluation.
 
 pub mod calibration;
@@ -10,6 +11,7 @@ pub mod cli;
 pub mod dynamics;
 pub mod fit;
 pub mod forms;
+pub mod lane;
 pub mod plots;
 pub mod reload;
 pub mod run;

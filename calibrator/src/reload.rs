@@ -1,8 +1,9 @@
-//! Hot reload of the calibration file: a watcher thread polls the file's metadata every 20 ms
-//! (so editing in place and atomic replacement by rename are both seen), waits until the file
-//! stops changing, then parses and validates it off the hot path and hands the new model over a
-//! channel. The hot loop only does a non-blocking `try_recv` per sample. A file that fails to
-//! load is reported once per change and the previous model keeps serving.
+//! Hot reload of the calibration files: one watcher thread polls every file's metadata every
+//! 20 ms (so editing in place and atomic replacement by rename are both seen), waits until a
+//! changed file stops changing, then parses and validates it off the hot path and hands the new
+//! model over a channel, tagged with the file. The hot loop only does a non-blocking `try_recv`
+//! per sample. A file that fails to load is reported once per change, naming the sensors it
+//! serves, and their previous model keeps serving; other files and sensors are not affected.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -45,9 +46,20 @@ pub fn load_for(path: &Path, rows: usize, cols: usize) -> Result<Calibration, St
     Ok(cal)
 }
 
-/// The watcher thread and the receiving end of its channel.
+/// One file the watcher follows: its path, the geometry its calibrations must have, and the
+/// sensors it serves (named in the log lines).
+#[derive(Debug, Clone)]
+pub struct Watched {
+    pub path: PathBuf,
+    pub rows: usize,
+    pub cols: usize,
+    pub sensors: Vec<String>,
+}
+
+/// The watcher thread (one for every file of the process) and the receiving end of its
+/// channel.
 pub struct Watcher {
-    rx: Receiver<Arc<Loaded>>,
+    rx: Receiver<(usize, Arc<Loaded>)>,
     stop: Arc<AtomicBool>,
     handle: Option<JoinHandle<()>>,
 }
@@ -56,12 +68,24 @@ impl Watcher {
     /// Starts watching `path`, whose current content (already loaded by the caller as
     /// generation 1) has signature as of now.
     pub fn spawn(path: PathBuf, rows: usize, cols: usize) -> std::io::Result<Watcher> {
+        Watcher::spawn_many(vec![Watched {
+            path,
+            rows,
+            cols,
+            sensors: Vec::new(),
+        }])
+    }
+
+    /// Starts watching several files in one thread (each already loaded by the caller as its
+    /// generation 1). A file that fails to load is reported with the sensors it serves; the
+    /// other files are not affected.
+    pub fn spawn_many(files: Vec<Watched>) -> std::io::Result<Watcher> {
         let (tx, rx) = mpsc::channel();
         let stop = Arc::new(AtomicBool::new(false));
         let stop2 = stop.clone();
         let handle = std::thread::Builder::new()
             .name("calibration-watch".into())
-            .spawn(move || watch(path, rows, cols, tx, stop2))?;
+            .spawn(move || watch(files, tx, stop2))?;
         Ok(Watcher {
             rx,
             stop,
@@ -69,13 +93,20 @@ impl Watcher {
         })
     }
 
-    /// A newly loaded calibration, if one is waiting (never blocks).
+    /// A newly loaded calibration, if one is waiting (never blocks); for a watcher of one file.
     pub fn try_next(&self) -> Option<Arc<Loaded>> {
         let mut newest = None;
-        while let Ok(l) = self.rx.try_recv() {
+        while let Ok((_, l)) = self.rx.try_recv() {
             newest = Some(l);
         }
         newest
+    }
+
+    /// Hands every newly loaded calibration to `f` with the index of its file (never blocks).
+    pub fn try_each(&self, mut f: impl FnMut(usize, Arc<Loaded>)) {
+        while let Ok((i, l)) = self.rx.try_recv() {
+            f(i, l);
+        }
     }
 }
 
@@ -88,52 +119,86 @@ impl Drop for Watcher {
     }
 }
 
-fn watch(path: PathBuf, rows: usize, cols: usize, tx: Sender<Arc<Loaded>>, stop: Arc<AtomicBool>) {
-    let mut seen = signature(&path);
-    let mut generation = 1u32;
-    let mut missing_reported = false;
+/// What the watcher knows of one file.
+struct FileState {
+    seen: Option<FileSignature>,
+    generation: u32,
+    missing_reported: bool,
+    /// Changed at the last poll: look again after half a poll before reading it.
+    settling: Option<FileSignature>,
+}
+
+fn watch(files: Vec<Watched>, tx: Sender<(usize, Arc<Loaded>)>, stop: Arc<AtomicBool>) {
+    let mut state: Vec<FileState> = files
+        .iter()
+        .map(|f| FileState {
+            seen: signature(&f.path),
+            generation: 1,
+            missing_reported: false,
+            settling: None,
+        })
+        .collect();
     while !stop.load(Ordering::Relaxed) {
         std::thread::sleep(POLL);
-        let now = signature(&path);
-        if now == seen {
+        let mut any_settling = false;
+        for (f, st) in files.iter().zip(state.iter_mut()) {
+            st.settling = None;
+            let now = signature(&f.path);
+            if now == st.seen {
+                continue;
+            }
+            let Some(sig) = now else {
+                if !st.missing_reported {
+                    warn!(file = %f.path.display(), sensors = %f.sensors.join(","), "calibration file is gone; keeping the loaded model until a new file appears");
+                    st.missing_reported = true;
+                }
+                st.seen = None;
+                continue;
+            };
+            st.missing_reported = false;
+            st.settling = Some(sig);
+            any_settling = true;
+        }
+        if !any_settling {
             continue;
         }
-        let Some(sig) = now else {
-            if !missing_reported {
-                warn!(file = %path.display(), "calibration file is gone; keeping the loaded model until a new file appears");
-                missing_reported = true;
-            }
-            seen = None;
-            continue;
-        };
-        missing_reported = false;
         // Let a writer finish: the file must look the same for one more poll.
         std::thread::sleep(POLL / 2);
-        if signature(&path) != Some(sig) {
-            continue;
-        }
-        seen = Some(sig);
-        match load_for(&path, rows, cols) {
-            Ok(calibration) => {
-                generation += 1;
-                info!(
-                    file = %path.display(),
-                    id = %calibration.id,
-                    version = calibration.version,
-                    generation,
-                    "calibration reloaded"
-                );
-                if tx
-                    .send(Arc::new(Loaded {
-                        calibration,
-                        generation,
-                    }))
-                    .is_err()
-                {
-                    return;
-                }
+        for (i, (f, st)) in files.iter().zip(state.iter_mut()).enumerate() {
+            let Some(sig) = st.settling.take() else {
+                continue;
+            };
+            if signature(&f.path) != Some(sig) {
+                continue;
             }
-            Err(e) => error!("calibration rejected, previous model keeps serving: {e}"),
+            st.seen = Some(sig);
+            match load_for(&f.path, f.rows, f.cols) {
+                Ok(calibration) => {
+                    st.generation += 1;
+                    info!(
+                        file = %f.path.display(),
+                        sensors = %f.sensors.join(","),
+                        id = %calibration.id,
+                        version = calibration.version,
+                        generation = st.generation,
+                        "calibration reloaded"
+                    );
+                    let loaded = Arc::new(Loaded {
+                        calibration,
+                        generation: st.generation,
+                    });
+                    if tx.send((i, loaded)).is_err() {
+                        return;
+                    }
+                }
+                Err(e) if f.sensors.is_empty() => {
+                    error!("calibration rejected, previous model keeps serving: {e}")
+                }
+                Err(e) => error!(
+                    "calibration rejected for sensor(s) {}, their previous model keeps serving (the other sensors are not affected): {e}",
+                    f.sensors.join(",")
+                ),
+            }
         }
     }
 }

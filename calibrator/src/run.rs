@@ -1,30 +1,40 @@
-//! The calibrator process loop: wakes on raw frames and curvature estimates (WaitSet), applies
-//! the calibration to every frame, publishes a `ForceSample` per frame, and swaps in a reloaded
-//! calibration between two frames.
+//! The calibrator process loop, for one sensor or many: wakes on raw frames (WaitSet; one
+//! listener per sensor), applies each sensor's calibration to every frame (the per-frame
+//! computation is [`Calibrator`]), publishes a `ForceSample` per frame on that sensor's stream,
+//! and swaps in a reloaded calibration between two frames for every sensor its file serves.
+//! One sensor waits in any wake mode; several wait event-driven in one WaitSet.
 
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
 
 use taxel_formats::{Readout, ReadoutKind};
 use taxel_msgs::{
-    force_flags, raw_flags, CurvatureEstimate, ForceSample, RawFrame, Stream, MAX_BLOCKS, MAX_NODES,
+    force_flags, raw_flags, CurvatureEstimate, ForceSample, RawFrame, MAX_BLOCKS, MAX_NODES,
 };
 use taxel_runtime::ipc::Ipc;
-use taxel_runtime::stats::SeqTracker;
-use taxel_runtime::wake::{receive_loop, LoopOptions, WakeMode};
-use taxel_runtime::{now_ns, Shutdown};
-use tracing::{debug, error, info};
+use taxel_runtime::wake::{receive_loop, receive_many, LoopOptions, WakeMode};
+use taxel_runtime::Shutdown;
+use tracing::info;
 
 use crate::calibration::Calibration;
 use crate::dynamics::State;
-use crate::reload::{Loaded, Watcher};
+use crate::lane::{Lane, Streams};
+use crate::reload::{Loaded, Watched, Watcher};
+
+/// One sensor of a calibrator: its id and the index of its calibration file in
+/// [`Config::files`].
+#[derive(Debug, Clone)]
+pub struct SensorConfig {
+    pub sensor: String,
+    pub file: usize,
+}
 
 /// Calibrator settings.
 #[derive(Debug, Clone)]
 pub struct Config {
-    pub sensor: String,
-    pub calibration: PathBuf,
+    pub sensors: Vec<SensorConfig>,
+    /// The distinct calibration files (each watched once, reloaded for all its sensors).
+    pub files: Vec<PathBuf>,
     /// A curvature estimate (baseline) older than this is flagged stale (s).
     pub curvature_stale_s: f64,
     /// How to wait for raw frames.
@@ -348,126 +358,153 @@ fn sum_signal(counts: &[f32], base: &[f64], nodes: &[usize], signal: impl Fn(f64
     }
 }
 
-/// Runs the calibrator until shutdown. The initial calibration was validated by the caller.
+/// Runs the calibrator until shutdown. The initial calibrations (one per file of
+/// `cfg.files`) were validated by the caller.
 pub fn run(
     ipc: &Ipc,
     cfg: &Config,
-    initial: Calibration,
+    initial: Vec<Calibration>,
     shutdown: &Shutdown,
 ) -> anyhow::Result<Summary> {
-    let (rows, cols) = (initial.rows, initial.cols);
-    let mut cal = Calibrator::new(
-        Arc::new(Loaded {
-            calibration: initial,
-            generation: 1,
-        }),
-        cfg.curvature_stale_s,
+    anyhow::ensure!(
+        !cfg.sensors.is_empty() && initial.len() == cfg.files.len(),
+        "need sensors and one calibration per file"
     );
-    let watcher = Watcher::spawn(cfg.calibration.clone(), rows, cols)?;
-    let raw = ipc.subscriber::<RawFrame>(&cfg.sensor, Stream::Raw)?;
-    let curv = ipc.subscriber::<CurvatureEstimate>(&cfg.sensor, Stream::Curvature)?;
-    let force = ipc.publisher::<ForceSample>(&cfg.sensor, Stream::Force)?;
-    info!(
-        sensor = %cfg.sensor,
-        file = %cfg.calibration.display(),
-        id = %cal.calibration().id,
-        version = cal.calibration().version,
-        "calibrator ready"
-    );
-    // A late start still gets the latest estimate through the stream's history.
-    if let Some(est) = curv.latest()? {
-        cal.set_curvature(&est);
+    let mut watched: Vec<Watched> = initial
+        .iter()
+        .zip(&cfg.files)
+        .map(|(c, p)| Watched {
+            path: p.clone(),
+            rows: c.rows,
+            cols: c.cols,
+            sensors: Vec::new(),
+        })
+        .collect();
+    let loaded: Vec<Arc<Loaded>> = initial
+        .into_iter()
+        .map(|calibration| {
+            Arc::new(Loaded {
+                calibration,
+                generation: 1,
+            })
+        })
+        .collect();
+    let mut lanes = Vec::with_capacity(cfg.sensors.len());
+    let mut streams = Streams::default();
+    for s in &cfg.sensors {
+        let f = s.file;
+        anyhow::ensure!(
+            f < loaded.len(),
+            "sensor {}: no calibration file {f}",
+            s.sensor
+        );
+        if cfg.sensors.len() > 1 {
+            watched[f].sensors.push(s.sensor.clone());
+        }
+        let cal = Calibrator::new(loaded[f].clone(), cfg.curvature_stale_s);
+        let shown = cfg.files[f].display().to_string();
+        streams.open(ipc, &s.sensor)?;
+        lanes.push(Lane::new(&s.sensor, f, shown, cal));
     }
-    let mut out = ForceSample::ZERO;
-    let mut summary = Summary::default();
-    let mut seq = SeqTracker::default();
-    let mut mismatch_reported = false;
-    let mut readout_reported = false;
-    let mut readout_noted = false;
-    let mut gap_first = taxel_runtime::process::restarted();
-    let mut last_report = Instant::now();
-    let mut frames_at_report = 0;
-    let wake = receive_loop(
-        &raw,
-        LoopOptions::new(cfg.wake),
+    // Ready once every sensor's streams are open.
+    for (lane, curv) in lanes.iter_mut().zip(&streams.curv) {
+        info!(
+            sensor = %lane.sensor,
+            file = %cfg.files[lane.file].display(),
+            id = %lane.cal.calibration().id,
+            version = lane.cal.calibration().version,
+            "calibrator ready"
+        );
+        // A late start still gets the latest estimate through the stream's history.
+        if let Some(est) = curv.latest()? {
+            lane.cal.set_curvature(&est);
+        }
+    }
+    let watcher = Watcher::spawn_many(watched)?;
+    let wake = if let [lane] = lanes.as_mut_slice() {
+        one(lane, &streams, &watcher, cfg.wake, shutdown)?
+    } else {
+        anyhow::ensure!(
+            cfg.wake == WakeMode::Event,
+            "several sensors wait event-driven only"
+        );
+        many(&mut lanes, &streams, &watcher, shutdown)?;
+        info!(sensors = lanes.len(), "calibrator stopped serving");
+        Default::default()
+    };
+    let mut summary = Summary {
+        wake,
+        ..Summary::default()
+    };
+    for l in &lanes {
+        summary.frames += l.frames;
+        summary.dropped += l.seq.dropped;
+        summary.reloads += l.reloads;
+        summary.geometry_mismatches += l.geometry_mismatches;
+        summary.readout_mismatches += l.readout_mismatches;
+    }
+    Ok(summary)
+}
+
+/// One sensor, in any wake mode, handing over to a polling consumer.
+fn one(
+    lane: &mut Lane,
+    st: &Streams,
+    watcher: &Watcher,
+    wake: WakeMode,
+    shutdown: &Shutdown,
+) -> anyhow::Result<taxel_runtime::wake::AdaptiveStats> {
+    let stats = receive_loop(
+        &st.raw[0],
+        LoopOptions::new(wake),
         shutdown,
         |f| (f.seq, f.t_capture_ns),
         |frame, _| {
-            // Curvature estimates are rare and history for a late joiner comes without a
-            // wake-up: look on every frame (a cheap check).
-            if let Some(est) = curv.poll_latest()? {
-                debug!(curvature_m1 = est.curvature_m1, "new curvature estimate");
-                cal.set_curvature(&est);
-            }
+            lane.poll_curvature(&st.curv[0])?;
             if let Some(l) = watcher.try_next() {
-                info!(
-                    version = l.calibration.version,
-                    generation = l.generation,
-                    "now serving reloaded calibration"
-                );
-                cal.set_loaded(l);
-                summary.reloads += 1;
+                lane.reloaded(l);
             }
-            if (frame.rows as usize, frame.cols as usize) != (rows, cols) {
-                summary.geometry_mismatches += 1;
-                if !mismatch_reported {
-                    error!(
-                        "sensor streams {} x {} frames but the calibration is for {rows} x {cols}; frames are skipped",
-                        frame.rows, frame.cols
-                    );
-                    mismatch_reported = true;
+            lane.on_frame(frame, &st.force[0], true)
+        },
+        || {
+            let _ = st.curv[0].clear_wakeups();
+        },
+    )?;
+    Ok(stats)
+}
+
+/// Several sensors in one WaitSet (every raw listener attached). A reloaded file goes to every
+/// sensor it serves, between two frames.
+fn many(
+    lanes: &mut [Lane],
+    st: &Streams,
+    watcher: &Watcher,
+    shutdown: &Shutdown,
+) -> anyhow::Result<()> {
+    receive_many(
+        &st.raw,
+        None,
+        taxel_runtime::ipc::TICK,
+        shutdown,
+        lanes,
+        |lanes: &mut [Lane], i, frame: &RawFrame, _| -> anyhow::Result<()> {
+            watcher.try_each(|f, l| {
+                for lane in lanes.iter_mut().filter(|x| x.file == f) {
+                    lane.reloaded(l.clone());
                 }
-                return Ok(());
-            }
-            let code = raw_flags::readout_code(frame.flags);
-            match cal.calibration().readout.check_stream(
-                &cfg.calibration.display().to_string(),
-                code,
-                frame.full_scale as f64,
-            ) {
-                Err(reason) => {
-                    summary.readout_mismatches += 1;
-                    if !readout_reported {
-                        error!("{reason}; frames are skipped");
-                        readout_reported = true;
-                    }
-                    return Ok(());
-                }
-                Ok(Some(note)) if !readout_noted => {
-                    info!("{note}");
-                    readout_noted = true;
-                }
-                Ok(_) => {}
-            }
-            let gap = seq.observe(frame.seq) > 0;
-            cal.apply(frame, now_ns(), &mut out);
-            if gap || gap_first {
-                // Frames were dropped before this one, or the previous calibrator died.
-                out.flags |= taxel_msgs::force_flags::GAP_BEFORE;
-                gap_first = false;
-            }
-            out.t_publish_ns = now_ns();
-            // A control loop polling on this core takes the sample before the notification.
-            force.send_handing_over(&out)?;
-            summary.frames += 1;
-            if summary.frames % 256 == 0 && last_report.elapsed() >= Duration::from_secs(1) {
-                debug!(
-                    fps = (summary.frames - frames_at_report) as f64
-                        / last_report.elapsed().as_secs_f64(),
-                    "calibrating"
-                );
-                last_report = Instant::now();
-                frames_at_report = summary.frames;
+            });
+            let lane = &mut lanes[i];
+            lane.poll_curvature(&st.curv[i])?;
+            lane.on_frame(frame, &st.force[i], false)?;
+            Ok(())
+        },
+        |_| {
+            for c in &st.curv {
+                let _ = c.clear_wakeups();
             }
             Ok(())
         },
-        || {
-            let _ = curv.clear_wakeups();
-        },
-    )?;
-    summary.wake = wake;
-    summary.dropped = seq.dropped;
-    Ok(summary)
+    )
 }
 
 #[cfg(test)]
