@@ -7,6 +7,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
+use taxel_runtime::sensors::{process_name, resolve_opt, sensor_list, PerSensor};
 use taxel_runtime::Shutdown;
 use taxel_sim::{Scenario, SensorModel};
 use tracing::info;
@@ -15,13 +16,15 @@ use crate::serial::protocol::Format;
 use crate::serial::SerialConfig;
 use crate::source::{ReplaySource, SimSource, Source};
 
-/// Publishes raw frames of one sensor from a source.
+/// Publishes raw frames of one sensor, or of several from one process, from a source.
 #[derive(Debug, Parser)]
 #[command(name = "taxel-publisher", version)]
 pub struct Args {
     #[command(flatten)]
     pub common: CommonArgs,
-    /// Sensor id: services are named `taxel/<ID>/raw` and `taxel/<ID>/reference`.
+    /// Sensor id: services are named `taxel/<ID>/raw` and `taxel/<ID>/reference`. Several
+    /// (`a,b,c`, sim and replay sources): one process publishes them all, each on its own
+    /// services with its own source, schedule and sequence numbers.
     #[arg(long, default_value = "s0")]
     pub sensor: String,
     /// Stop after this many seconds (default: when the source ends, or on Ctrl-C).
@@ -72,36 +75,41 @@ pub struct SerialArgs {
     pub readout: u32,
 }
 
+/// Options of the simulator. With several sensors each option takes one value for every sensor
+/// or a list with one per sensor (an empty entry: not given for that sensor), and sensor i
+/// (from 0, in `--sensor` order) is a different sensor: its seed is `--seed` (or the
+/// scenario's) + i and its build seed `--build-seed` + i, unless a list gives each its own.
 #[derive(Debug, clap::Args)]
 pub struct SimArgs {
     /// Scenario TOML (default: the built-in demo: presses at 2, 4, 6, 8 N, repeated).
     #[arg(long)]
-    pub scenario: Option<PathBuf>,
+    pub scenario: Option<PerSensor<PathBuf>>,
     /// Sensor model TOML (default: the built-in model).
     #[arg(long, conflicts_with = "preset")]
-    pub model: Option<PathBuf>,
+    pub model: Option<PerSensor<PathBuf>>,
     /// A named sensor model: default, paper-dataset (build spread, mounting scatter) or alt.
     #[arg(long)]
-    pub preset: Option<String>,
+    pub preset: Option<PerSensor<String>>,
     /// Identity of the simulated sensor: seed of its part-to-part spread (default: the
-    /// scenario seed). Sensor i of `taxel estimator dataset --seed S` is build S * 1000 + i + 1.
+    /// model's, else the seed). Sensor i of `taxel estimator dataset --seed S` is build
+    /// S * 1000 + i + 1.
     #[arg(long)]
-    pub build_seed: Option<u64>,
+    pub build_seed: Option<PerSensor<u64>>,
     /// Seed of every random draw (overrides the scenario's).
     #[arg(long)]
-    pub seed: Option<u64>,
+    pub seed: Option<PerSensor<u64>>,
     /// Frame rate in Hz (overrides the scenario's).
     #[arg(long)]
-    pub rate_hz: Option<f64>,
+    pub rate_hz: Option<PerSensor<f64>>,
     /// Curvature of the initial mounting in 1/m (overrides the scenario's).
     #[arg(long)]
-    pub curvature_m1: Option<f64>,
+    pub curvature_m1: Option<PerSensor<f64>>,
     /// Rows of the simulated array, 1..=32 (overrides the model's).
     #[arg(long)]
-    pub rows: Option<usize>,
+    pub rows: Option<PerSensor<usize>>,
     /// Columns of the simulated array, 1..=32 (overrides the model's).
     #[arg(long)]
-    pub cols: Option<usize>,
+    pub cols: Option<PerSensor<usize>>,
     /// Write the frames to this recording CSV (.csv or .csv.gz) as fast as possible instead of
     /// publishing them (a repeating scenario needs --seconds).
     #[arg(long)]
@@ -111,11 +119,14 @@ pub struct SimArgs {
 #[derive(Debug, clap::Args)]
 pub struct ReplayArgs {
     /// Recording CSV (.csv or .csv.gz), or an MCAP file written by `taxel logger export --mcap`
-    /// (detected by its magic; its raw channel is played).
-    pub file: PathBuf,
-    /// MCAP input: the sensor whose `/taxel/<ID>/raw` channel to play (default: the only one).
+    /// (detected by its magic; its raw channel is played). With several sensors: one file for
+    /// all, or one per sensor.
+    #[arg(required = true, num_args = 1..)]
+    pub file: Vec<PathBuf>,
+    /// MCAP input: the sensor whose `/taxel/<ID>/raw` channel to play (default: the only one);
+    /// one for every sensor or one per sensor.
     #[arg(long)]
-    pub from_sensor: Option<String>,
+    pub from_sensor: Option<PerSensor<String>>,
     /// Playback speed relative to the recording's t_s.
     #[arg(long, default_value_t = 1.0)]
     pub speed: f64,
@@ -167,8 +178,37 @@ fn read_toml<T>(
     parse(&text).with_context(|| format!("{}", path.display()))
 }
 
-fn sim_source(a: &SimArgs, seconds: Option<f64>) -> anyhow::Result<SimSource> {
-    let mut model = match (&a.model, &a.preset) {
+/// Sensor `i` of `n`'s value of a per-sensor option.
+fn nth<T: Clone>(
+    v: &Option<PerSensor<T>>,
+    flag: &str,
+    i: usize,
+    n: usize,
+) -> anyhow::Result<Option<T>> {
+    Ok(resolve_opt(v, flag, n)
+        .map_err(|e| anyhow::anyhow!(e))?
+        .swap_remove(i))
+}
+
+/// `base + i` for one value given for every sensor, the entry itself from a list.
+fn seed_of(
+    v: &Option<PerSensor<u64>>,
+    flag: &str,
+    i: usize,
+    n: usize,
+) -> anyhow::Result<Option<u64>> {
+    let value = nth(v, flag, i, n)?;
+    Ok(match v {
+        Some(p) if p.is_single() => value.map(|b| b.wrapping_add(i as u64)),
+        _ => value,
+    })
+}
+
+/// The simulator of sensor `i` of `n`.
+fn sim_source(a: &SimArgs, i: usize, n: usize, seconds: Option<f64>) -> anyhow::Result<SimSource> {
+    let model_path = nth(&a.model, "--model", i, n)?;
+    let preset = nth(&a.preset, "--preset", i, n)?;
+    let mut model = match (&model_path, &preset) {
         (Some(p), _) => read_toml(p, SensorModel::from_toml_str)?,
         (None, Some(name)) => taxel_sim::presets::preset(name).ok_or_else(|| {
             anyhow::anyhow!(
@@ -178,26 +218,30 @@ fn sim_source(a: &SimArgs, seconds: Option<f64>) -> anyhow::Result<SimSource> {
         })?,
         (None, None) => SensorModel::default(),
     };
-    if let Some(b) = a.build_seed {
+    if let Some(b) = seed_of(&a.build_seed, "--build-seed", i, n)? {
         model.spread.build_seed = Some(b);
     }
-    if let Some(r) = a.rows {
+    if let Some(r) = nth(&a.rows, "--rows", i, n)? {
         model.rows = r;
     }
-    if let Some(c) = a.cols {
+    if let Some(c) = nth(&a.cols, "--cols", i, n)? {
         model.cols = c;
     }
-    let mut scenario = match &a.scenario {
-        Some(p) => read_toml(p, Scenario::from_toml_str)?,
+    let mut scenario = match nth(&a.scenario, "--scenario", i, n)? {
+        Some(p) => read_toml(&p, Scenario::from_toml_str)?,
         None => Scenario::demo(0.0, 1),
     };
-    if let Some(s) = a.seed {
-        scenario.seed = s;
+    match (&a.seed, seed_of(&a.seed, "--seed", i, n)?) {
+        (_, Some(s)) => scenario.seed = s,
+        // Not given: every sensor of the list is a different one.
+        (None, None) => scenario.seed = scenario.seed.wrapping_add(i as u64),
+        // An empty entry of a list: the scenario's, as for a sensor of its own.
+        (Some(_), None) => {}
     }
-    if let Some(r) = a.rate_hz {
+    if let Some(r) = nth(&a.rate_hz, "--rate-hz", i, n)? {
         scenario.rate_hz = r;
     }
-    if let Some(c) = a.curvature_m1 {
+    if let Some(c) = nth(&a.curvature_m1, "--curvature-m1", i, n)? {
         scenario.mounting.curvature_m1 = c;
     }
     let frames = match (a.to_csv.is_some(), seconds) {
@@ -208,6 +252,46 @@ fn sim_source(a: &SimArgs, seconds: Option<f64>) -> anyhow::Result<SimSource> {
     Ok(src)
 }
 
+/// The source of sensor `i` of `n`; errors name the sensor when there are several.
+fn source(args: &Args, names: &[String], i: usize) -> anyhow::Result<Box<dyn Source>> {
+    let n = names.len();
+    let src: Box<dyn Source> = match &args.source {
+        SourceArgs::Sim(a) => Box::new(sim_source(a, i, n, args.seconds)?),
+        SourceArgs::Serial(_) => anyhow::bail!("serial: one sensor per publisher"),
+        SourceArgs::Replay(a) => {
+            let file = match a.file.as_slice() {
+                [one] => one,
+                files if files.len() == n => &files[i],
+                files => anyhow::bail!(
+                    "replay: {} files for {n} sensor(s): give one for every sensor or one per sensor",
+                    files.len()
+                ),
+            };
+            let from = nth(&a.from_sensor, "--from-sensor", i, n)?;
+            if taxel_formats::mcap::is_mcap(file) {
+                Box::new(
+                    ReplaySource::open_mcap(
+                        file,
+                        from.as_deref(),
+                        a.rows,
+                        a.cols,
+                        a.speed,
+                        a.full_scale,
+                        a.repeat,
+                    )?
+                    .with_readout_code(a.readout.unwrap_or(0)),
+                )
+            } else {
+                Box::new(
+                    ReplaySource::open(file, a.rows, a.cols, a.speed, a.full_scale, a.repeat)?
+                        .with_readout_code(a.readout.unwrap_or(0)),
+                )
+            }
+        }
+    };
+    Ok(src)
+}
+
 /// Runs the publisher; the exit code follows the process conventions.
 pub fn main(args: Args) -> ExitCode {
     init_tracing(&args.common.log);
@@ -215,7 +299,8 @@ pub fn main(args: Args) -> ExitCode {
 }
 
 fn run(args: Args) -> Result<(), Failure> {
-    taxel_msgs::sensor_id_bytes(&args.sensor).config_err()?;
+    let names =
+        sensor_list("--sensor", &args.sensor).map_err(|e| Failure::config(anyhow::anyhow!(e)))?;
     if let Some(s) = args.seconds {
         if !(s.is_finite() && s > 0.0) {
             return Err(Failure::config(anyhow::anyhow!(
@@ -223,47 +308,34 @@ fn run(args: Args) -> Result<(), Failure> {
             )));
         }
     }
-    let mut source: Box<dyn Source> = match &args.source {
-        SourceArgs::Sim(a) => {
-            let mut src = sim_source(a, args.seconds).config_err()?;
-            if let Some(path) = &a.to_csv {
-                if src.frames_hint().is_none() {
-                    return Err(Failure::config(anyhow::anyhow!(
-                        "the scenario repeats forever: give --seconds to bound --to-csv"
-                    )));
-                }
-                let hint = src.frames_hint();
-                let n = crate::run::write_csv(&mut src, path, hint).runtime_err()?;
-                info!("wrote {n} frames to {}", path.display());
-                return Ok(());
-            }
-            Box::new(src)
+    let n = names.len();
+    match &args.source {
+        SourceArgs::Serial(_) if n > 1 => {
+            return Err(Failure::config(anyhow::anyhow!(
+                "--sensor: serial publishes one sensor (each board has its own port); got {n}: run one publisher per board"
+            )))
         }
         SourceArgs::Serial(a) => return serial(&args, a),
-        SourceArgs::Replay(a) if taxel_formats::mcap::is_mcap(&a.file) => Box::new(
-            ReplaySource::open_mcap(
-                &a.file,
-                a.from_sensor.as_deref(),
-                a.rows,
-                a.cols,
-                a.speed,
-                a.full_scale,
-                a.repeat,
-            )
-            .config_err()?
-            .with_readout_code(a.readout.unwrap_or(0)),
-        ),
-        SourceArgs::Replay(a) => Box::new(
-            ReplaySource::open(&a.file, a.rows, a.cols, a.speed, a.full_scale, a.repeat)
-                .config_err()?
-                .with_readout_code(a.readout.unwrap_or(0)),
-        ),
-    };
+        SourceArgs::Sim(a) if a.to_csv.is_some() => return to_csv(&args, a, n),
+        _ => {}
+    }
+    let mut sources = Vec::with_capacity(n);
+    for (i, name) in names.iter().enumerate() {
+        let src = source(&args, &names, i);
+        sources.push(match src {
+            Ok(s) => s,
+            Err(e) if n == 1 => return Err(Failure::config(e)),
+            Err(e) => return Err(Failure::config(e.context(format!("sensor {name:?}")))),
+        });
+    }
     let shutdown = Shutdown::install().runtime_err()?;
-    let ipc =
-        Ipc::open(&args.common.prefix, &format!("publisher-{}", args.sensor)).runtime_err()?;
-    let s = crate::run::publish(&ipc, &args.sensor, source.as_mut(), args.seconds, &shutdown)
-        .runtime_err()?;
+    let ipc = Ipc::open(&args.common.prefix, &process_name("publisher", &names)).runtime_err()?;
+    let mut lanes: Vec<(&str, &mut dyn Source)> = names
+        .iter()
+        .zip(sources.iter_mut())
+        .map(|(name, src)| (name.as_str(), &mut **src as &mut dyn Source))
+        .collect();
+    let s = crate::run::publish_many(&ipc, &mut lanes, args.seconds, &shutdown).runtime_err()?;
     info!(
         sensor = %args.sensor,
         frames = s.frames,
@@ -271,6 +343,28 @@ fn run(args: Args) -> Result<(), Failure> {
         late_resets = s.late_resets,
         "publisher stopped"
     );
+    Ok(())
+}
+
+/// `sim --to-csv`: one sensor's frames into a recording CSV, as fast as possible.
+fn to_csv(args: &Args, a: &SimArgs, n: usize) -> Result<(), Failure> {
+    let Some(path) = &a.to_csv else {
+        return Ok(());
+    };
+    if n > 1 {
+        return Err(Failure::config(anyhow::anyhow!(
+            "--to-csv writes one sensor; got {n} in --sensor"
+        )));
+    }
+    let mut src = sim_source(a, 0, 1, args.seconds).config_err()?;
+    if src.frames_hint().is_none() {
+        return Err(Failure::config(anyhow::anyhow!(
+            "the scenario repeats forever: give --seconds to bound --to-csv"
+        )));
+    }
+    let hint = src.frames_hint();
+    let n = crate::run::write_csv(&mut src, path, hint).runtime_err()?;
+    info!("wrote {n} frames to {}", path.display());
     Ok(())
 }
 
