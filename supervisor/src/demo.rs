@@ -130,8 +130,13 @@ fn run(a: Args) -> Result<(), Failure> {
         recording.display(),
         a.seconds.map_or(String::new(), |s| format!(" (or after {s} s)"))
     );
-    let mut sup = Supervisor::start(&a.prefix, &a.log, pipeline.policy(), pipeline.processes())
-        .runtime_err()?;
+    let mut sup = Supervisor::start(
+        &a.prefix,
+        &a.log,
+        pipeline.policy(),
+        pipeline.processes().config_err()?,
+    )
+    .runtime_err()?;
     let until = a
         .seconds
         .map(|s| Instant::now() + Duration::from_secs_f64(s));
@@ -160,6 +165,7 @@ pub fn demo_pipeline(
         .enumerate()
         .map(|(i, (id, curvature))| Sensor {
             id,
+            count: None,
             source: Source::Sim {
                 scenario: None,
                 preset: Some("paper-dataset".to_string()),
@@ -176,6 +182,7 @@ pub fn demo_pipeline(
     Pipeline {
         prefix: None,
         log: log.to_string(),
+        layout: crate::pipeline::Layout::PerSensor,
         supervision: Supervision::default(),
         controls: sensors
             .iter()

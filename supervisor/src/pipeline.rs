@@ -1,7 +1,9 @@
 //! The pipeline file of `taxel up` (TOML, docs/formats.md): sensors with their source,
-//! curvature and calibration, the consumers, and the supervision policy. Parsed with
-//! `deny_unknown_fields`, validated into the list of processes the supervisor runs. `taxel demo`
-//! and `taxel soak` build the same [`Pipeline`] in memory.
+//! curvature and calibration (a table may stand for `count` numbered sensors), the consumers,
+//! the supervision policy, and the layout: a publisher, estimator and calibrator per sensor, or
+//! shared by all sensors (`crate::layout`). Parsed with `deny_unknown_fields`, validated into
+//! the list of processes the supervisor runs. `taxel demo` and `taxel soak` build the same
+//! [`Pipeline`] in memory.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -9,6 +11,7 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 
 use crate::supervise::{Policy, ProcSpec};
+use taxel_runtime::sensors::MAX_SENSORS;
 
 /// Stop stages: consumers stop first, sources last.
 pub const STAGE_CONSUMER: u8 = 0;
@@ -26,6 +29,10 @@ pub struct Pipeline {
     /// Log filter of the child processes (RUST_LOG syntax).
     #[serde(default = "default_log")]
     pub log: String,
+    /// Which processes serve the sensors: a publisher, estimator and calibrator per sensor, or
+    /// one of each for all sensors.
+    #[serde(default)]
+    pub layout: Layout,
     #[serde(default)]
     pub supervision: Supervision,
     #[serde(rename = "sensor")]
@@ -40,6 +47,20 @@ pub struct Pipeline {
 
 fn default_log() -> String {
     "warn".to_string()
+}
+
+/// Which processes serve the sensors.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Layout {
+    /// A publisher, an estimator and a calibrator per sensor (restarting one touches one
+    /// sensor).
+    #[default]
+    PerSensor,
+    /// One estimator and one calibrator for every sensor, one publisher for the simulated
+    /// sensors and one per group of replays with the same options (serial boards keep one
+    /// publisher each); restarting one restarts all its sensors.
+    Shared,
 }
 
 /// Restart policy and deadlines.
@@ -83,6 +104,10 @@ impl Default for Supervision {
 #[serde(deny_unknown_fields)]
 pub struct Sensor {
     pub id: String,
+    /// This table stands for `count` sensors `<id>0` .. `<id><count-1>` (sim sources: sensor k
+    /// has seed and build seed + k; the seed defaults to the scenario's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub count: Option<usize>,
     pub source: Source,
     /// Calibration TOML served by the calibrator (hot-reloaded).
     pub calibration: PathBuf,
@@ -179,7 +204,7 @@ pub struct Latency {
     pub wake: Option<String>,
 }
 
-fn s(v: impl ToString) -> String {
+pub(crate) fn s(v: impl ToString) -> String {
     v.to_string()
 }
 
@@ -205,9 +230,53 @@ impl Pipeline {
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
         p.resolve(base);
-        p.validate()
+        p.expand()
+            .and_then(|_| p.validate())
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         Ok(p)
+    }
+
+    /// Replaces every table with a `count` by its numbered sensors.
+    pub fn expand(&mut self) -> anyhow::Result<()> {
+        let mut out = Vec::with_capacity(self.sensors.len());
+        for (i, sn) in self.sensors.iter().enumerate() {
+            let Some(count) = sn.count else {
+                out.push(sn.clone());
+                continue;
+            };
+            let at = format!("sensor[{i}] ({:?})", sn.id);
+            anyhow::ensure!(
+                (1..=MAX_SENSORS).contains(&count),
+                "{at}: count must be 1..={MAX_SENSORS}, got {count}"
+            );
+            anyhow::ensure!(
+                !matches!(sn.source, Source::Serial { .. }),
+                "{at}: count needs a sim or replay source (a serial board is one sensor)"
+            );
+            for k in 0..count {
+                let mut one = sn.clone();
+                one.id = format!("{}{k}", sn.id);
+                one.count = None;
+                if let Source::Sim {
+                    scenario,
+                    seed,
+                    build_seed,
+                    ..
+                } = &mut one.source
+                {
+                    let base = match seed {
+                        Some(s) => *s,
+                        None => scenario_seed(scenario.as_deref())
+                            .map_err(|e| anyhow::anyhow!("{at}: {e}"))?,
+                    };
+                    *seed = Some(base.wrapping_add(k as u64));
+                    *build_seed = build_seed.map(|b| b.wrapping_add(k as u64));
+                }
+                out.push(one);
+            }
+        }
+        self.sensors = out;
+        Ok(())
     }
 
     fn resolve(&mut self, base: &Path) {
@@ -351,8 +420,9 @@ impl Pipeline {
     }
 
     /// The processes, as `taxel <role> ...` argument lists, in start order (consumers first,
-    /// sources last, so nothing published is missed).
-    pub fn processes(&self) -> Vec<ProcSpec> {
+    /// sources last, so nothing published is missed). Fails when a shared layout cannot say
+    /// what a sensor needs (a scenario file it cannot read for its seed, a path with a comma).
+    pub fn processes(&self) -> anyhow::Result<Vec<ProcSpec>> {
         let sv = &self.supervision;
         let mut out = Vec::new();
         if let Some(l) = &self.logger {
@@ -422,6 +492,16 @@ impl Pipeline {
                 args,
             ));
         }
+        match self.layout {
+            Layout::PerSensor => out.extend(self.per_sensor_processes()),
+            Layout::Shared => out.extend(crate::layout::shared_processes(self)?),
+        }
+        Ok(out)
+    }
+
+    /// A calibrator, an estimator and a publisher per sensor.
+    fn per_sensor_processes(&self) -> Vec<ProcSpec> {
+        let mut out = Vec::new();
         for sn in &self.sensors {
             out.push(ProcSpec::new(
                 &format!("calibrator-{}", sn.id),
@@ -459,7 +539,21 @@ impl Pipeline {
     }
 }
 
-fn publisher_args(id: &str, src: &Source) -> Vec<String> {
+/// The seed of a scenario file (None: the built-in demo scenario's).
+pub fn scenario_seed(scenario: Option<&Path>) -> anyhow::Result<u64> {
+    match scenario {
+        None => Ok(taxel_sim::Scenario::demo(0.0, 1).seed),
+        Some(p) => {
+            let text =
+                std::fs::read_to_string(p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+            let sc = taxel_sim::Scenario::from_toml_str(&text)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+            Ok(sc.seed)
+        }
+    }
+}
+
+pub(crate) fn publisher_args(id: &str, src: &Source) -> Vec<String> {
     let mut a = vec![s("publisher"), s("--sensor"), s(id)];
     let opt = |a: &mut Vec<String>, flag: &str, v: Option<String>| {
         if let Some(v) = v {
@@ -554,7 +648,7 @@ flush_ms = 100
         );
         let pl = Pipeline::load(&p).expect("load");
         assert_eq!(pl.policy().max_restarts, 3);
-        let procs = pl.processes();
+        let procs = pl.processes().expect("processes");
         let names: Vec<&str> = procs.iter().map(|p| p.name.as_str()).collect();
         assert_eq!(
             names,

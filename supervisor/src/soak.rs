@@ -248,8 +248,13 @@ fn run(a: Args) -> Result<(), Failure> {
         a.prefix,
         out.display()
     );
-    let mut sup = Supervisor::start(&a.prefix, &a.log, pipeline.policy(), pipeline.processes())
-        .runtime_err()?;
+    let mut sup = Supervisor::start(
+        &a.prefix,
+        &a.log,
+        pipeline.policy(),
+        pipeline.processes().config_err()?,
+    )
+    .runtime_err()?;
     let mut chaos = Chaos::new(&a, &cal);
     let until = chaos.t0 + Duration::from_secs_f64(a.seconds);
     sup.run(&shutdown, Some(until), |sup| chaos.step(sup));

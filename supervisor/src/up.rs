@@ -95,7 +95,7 @@ fn run(a: Args) -> Result<(), Failure> {
         text.trim_end()
     );
     let shutdown = Shutdown::install().runtime_err()?;
-    let specs = pipeline.processes();
+    let specs = pipeline.processes().config_err()?;
     println!(
         "taxel up: {} process(es) for {} sensor(s) from {}, prefix {prefix:?}; Ctrl-C stops",
         specs.len(),
