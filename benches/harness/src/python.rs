@@ -162,7 +162,7 @@ pub(crate) fn case(
         max: after(summary, "max"),
         cpu_pct: cpu,
         cpu_pct_max_process: cpu,
-        rate_hz: 0.0,
+        ..CaseResult::default()
     };
     Ok(vec![py_res, rust])
 }

@@ -36,12 +36,13 @@ pub(crate) fn write(
             c.cpu_pct_max_process
         ));
     }
+    md.push_str(&roles_table(cases));
     let cases_json: Vec<String> = cases
         .iter()
         .map(|c| {
             let num = |v: f64| if v.is_finite() { format!("{v:.1}") } else { "null".into() };
             format!(
-                "{{\"case\": \"{}\", \"rate_hz\": {}, \"received\": {}, \"p50_us\": {}, \"p90_us\": {}, \"p99_us\": {}, \"p999_us\": {}, \"max_us\": {}, \"dropped\": {}, \"cpu_pct\": {}, \"cpu_pct_max_process\": {}}}",
+                "{{\"case\": \"{}\", \"rate_hz\": {}, \"received\": {}, \"p50_us\": {}, \"p90_us\": {}, \"p99_us\": {}, \"p999_us\": {}, \"max_us\": {}, \"dropped\": {}, \"cpu_pct\": {}, \"cpu_pct_max_process\": {}",
                 c.case,
                 c.rate_hz,
                 num(c.received),
@@ -53,7 +54,7 @@ pub(crate) fn write(
                 num(c.dropped),
                 num(c.cpu_pct),
                 num(c.cpu_pct_max_process)
-            )
+            ) + &skin_json(c)
         })
         .collect();
     let json = format!(
@@ -107,4 +108,86 @@ fn machine() -> String {
         .unwrap_or_default();
     let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
     format!("{model}, {cores} cores, Linux {kernel}")
+}
+
+/// The many-sensor fields of a case's JSON object (`sensors`, `expected`, `roles`, `trials`)
+/// and its closing brace.
+fn skin_json(c: &CaseResult) -> String {
+    let num = |v: f64| {
+        if v.is_finite() {
+            format!("{v:.1}")
+        } else {
+            "null".into()
+        }
+    };
+    if c.roles.is_empty() && c.sensors == 0 {
+        return "}".into();
+    }
+    let roles: Vec<String> = c
+        .roles
+        .iter()
+        .map(|r| {
+            format!(
+                "{{\"role\": \"{}\", \"processes\": {}, \"cpu_pct\": {}, \"cpu_pct_max_process\": {}, \"rss_mb\": {}, \"rss_mb_max_process\": {}, \"rss_warm_mb\": {}}}",
+                r.role,
+                r.processes,
+                num(r.cpu_pct),
+                num(r.cpu_pct_max_process),
+                num(r.rss_mb),
+                num(r.rss_mb_max_process),
+                num(r.rss_warm_mb)
+            )
+        })
+        .collect();
+    let trials: Vec<String> = c
+        .trials
+        .iter()
+        .map(|(n, ok, what)| {
+            format!(
+                "{{\"sensors\": {n}, \"zero_loss\": {ok}, \"seen\": \"{}\"}}",
+                what.replace(['"', '\\'], "'")
+            )
+        })
+        .collect();
+    format!(
+        ", \"sensors\": {}, \"expected\": {}, \"roles\": [{}], \"trials\": [{}]}}",
+        c.sensors,
+        num(c.expected),
+        roles.join(", "),
+        trials.join(", ")
+    )
+}
+
+/// The per-role table of the skin cases (empty when no case has roles).
+fn roles_table(cases: &[CaseResult]) -> String {
+    let mut md = String::new();
+    for c in cases.iter().filter(|c| !c.roles.is_empty()) {
+        if md.is_empty() {
+            md.push_str("\nPer role (CPU over the probe's window; resident memory, VmRSS, after a fifth of the window and at its end):\n\n| case | sensors | role | processes | CPU, all (% core) | CPU, busiest process (% core) | RSS after warm-up, all (MB) | RSS at end, all (MB) | RSS, largest process (MB) |\n|---|---:|---|---:|---:|---:|---:|---:|---:|\n");
+        }
+        for r in &c.roles {
+            md.push_str(&format!(
+                "| {} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+                c.case,
+                c.sensors,
+                r.role,
+                r.processes,
+                r.cpu_pct,
+                r.cpu_pct_max_process,
+                r.rss_warm_mb,
+                r.rss_mb,
+                r.rss_mb_max_process
+            ));
+        }
+    }
+    for c in cases.iter().filter(|c| !c.trials.is_empty()) {
+        md.push_str(&format!("\n{} runs:\n\n", c.case));
+        for (n, ok, what) in &c.trials {
+            md.push_str(&format!(
+                "- {n} sensors: {}: {what}\n",
+                if *ok { "no loss" } else { "loss" }
+            ));
+        }
+    }
+    md
 }
