@@ -28,6 +28,10 @@ pub struct Args {
     /// Measure for this many seconds (default: until Ctrl-C).
     #[arg(long)]
     pub seconds: Option<f64>,
+    /// Ignore the samples of this many seconds first (a pipeline's start-up: processes of many
+    /// sensors take seconds to open their services and connect), then measure.
+    #[arg(long, default_value_t = 0.0)]
+    pub skip_s: f64,
     /// Print one JSON object on stdout instead of the table.
     #[arg(long)]
     pub json: bool,
@@ -44,18 +48,51 @@ pub fn main(args: Args) -> ExitCode {
     exit_code("taxel-latency", run(args))
 }
 
+/// When the measurement starts: `skip_s` after the probe is ready.
+struct Window {
+    skip_until: Instant,
+    measuring: bool,
+}
+
+impl Window {
+    fn new(skip_s: f64) -> Window {
+        Window {
+            skip_until: Instant::now() + std::time::Duration::from_secs_f64(skip_s),
+            measuring: skip_s <= 0.0,
+        }
+    }
+
+    /// Whether samples count now; true once the skipped time is over (the first time it
+    /// returns true after skipping, `start` runs to clear what was gathered).
+    fn counts(&mut self, start: impl FnOnce()) -> bool {
+        if !self.measuring && Instant::now() >= self.skip_until {
+            self.measuring = true;
+            start();
+        }
+        self.measuring
+    }
+}
+
+/// Forgets counts but not the last sequence number (a gap across the start is a loss).
+fn restart_counts(t: &mut SeqTracker) {
+    t.received = 0;
+    t.dropped = 0;
+    t.restarts = 0;
+}
+
 fn measure<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     sub: &StreamSubscriber<T>,
     stamp: impl Fn(&T) -> Stamp,
     mode: WakeMode,
-    seconds: Option<f64>,
+    (seconds, skip_s): (Option<f64>, f64),
     shutdown: &Shutdown,
 ) -> anyhow::Result<Measured> {
     tracing::info!("latency probe ready on {} ({mode:?} wake-up)", sub.name());
     let mut seq = SeqTracker::default();
     let mut h = AgeHistogram::new();
     let mut last_hop = AgeHistogram::new();
-    let start = Instant::now();
+    let mut window = Window::new(skip_s);
+    let start = window.skip_until;
     let until = seconds.map(|s| start + std::time::Duration::from_secs_f64(s));
     let wake = receive_loop(
         sub,
@@ -71,6 +108,10 @@ fn measure<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
         |v, _| {
             let now = now_ns();
             let s = stamp(v);
+            if !window.counts(|| restart_counts(&mut seq)) {
+                seq.observe(s.seq);
+                return Ok(());
+            }
             h.record_ns(now.saturating_sub(s.capture_ns));
             if s.published_ns > 0 {
                 last_hop.record_ns(now.saturating_sub(s.published_ns));
@@ -113,7 +154,7 @@ struct Measured {
 fn measure_many<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     subs: &[StreamSubscriber<T>],
     stamp: impl Fn(&T) -> Stamp,
-    seconds: Option<f64>,
+    (seconds, skip_s): (Option<f64>, f64),
     shutdown: &Shutdown,
 ) -> anyhow::Result<Measured> {
     let ws = taxel_runtime::ipc::waitset()?;
@@ -127,10 +168,12 @@ fn measure_many<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     tracing::info!("latency probe ready on {} streams", subs.len());
     let mut seqs = vec![SeqTracker::default(); subs.len()];
     let mut h = AgeHistogram::new();
-    let start = Instant::now();
+    let mut window = Window::new(skip_s);
+    let start = window.skip_until;
     let mut failure = None;
     while !shutdown.requested() && failure.is_none() {
-        if seconds.is_some_and(|s| start.elapsed().as_secs_f64() >= s) {
+        if seconds.is_some_and(|s| Instant::now() >= start + std::time::Duration::from_secs_f64(s))
+        {
             break;
         }
         ws.wait_and_process_once_with_timeout(
@@ -139,7 +182,9 @@ fn measure_many<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
                     if id.has_event_from(g) {
                         if let Err(e) = subs[i].drain(|v| {
                             let s = stamp(v);
-                            h.record_ns(now_ns().saturating_sub(s.capture_ns));
+                            if window.counts(|| seqs.iter_mut().for_each(restart_counts)) {
+                                h.record_ns(now_ns().saturating_sub(s.capture_ns));
+                            }
                             seqs[i].observe(s.seq);
                         }) {
                             failure = Some(e);
@@ -182,9 +227,10 @@ fn measure_streams<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     for s in &a.sensor {
         subs.push(ipc.subscriber::<T>(s, stream).runtime_err()?);
     }
+    let window = (a.seconds, a.skip_s);
     match subs.as_slice() {
-        [one] => measure(one, stamp, a.wake, a.seconds, shutdown),
-        many => measure_many(many, stamp, a.seconds, shutdown),
+        [one] => measure(one, stamp, a.wake, window, shutdown),
+        many => measure_many(many, stamp, window, shutdown),
     }
     .runtime_err()
 }
@@ -199,6 +245,12 @@ fn run(a: Args) -> Result<(), Failure> {
                 "--seconds must be a positive number, got {s}"
             )));
         }
+    }
+    if !(a.skip_s.is_finite() && a.skip_s >= 0.0) {
+        return Err(Failure::config(anyhow::anyhow!(
+            "--skip-s must be a number >= 0, got {}",
+            a.skip_s
+        )));
     }
     let shutdown = Shutdown::install().runtime_err()?;
     let name = if a.sensor.len() == 1 {
