@@ -45,6 +45,25 @@ fn bench_json_has_every_case() {
             "{case} received nothing: {obj}"
         );
     }
+    // The shared skin reports every role's CPU and memory; the heavy skins only run when
+    // named (speed and loss are measured, not asserted here).
+    let at = j
+        .find("\"case\": \"skin_64_sensors\"")
+        .unwrap_or_else(|| panic!("skin_64_sensors missing: {j}"));
+    let skin = &j[at..];
+    assert!(skin.contains("\"sensors\": 64"), "{skin}");
+    for role in ["publisher", "estimator", "calibrator"] {
+        let r = skin
+            .find(&format!("{{\"role\": \"{role}\", \"processes\": 1, "))
+            .unwrap_or_else(|| panic!("{role} missing: {skin}"));
+        assert!(skin[r..].contains("\"rss_mb\": "), "{skin}");
+    }
+    for heavy in ["skin_64_sensors_per_process", "skin_max_sensors"] {
+        assert!(
+            !j.contains(&format!("\"case\": \"{heavy}\"")),
+            "{heavy} ran"
+        );
+    }
     for f in ["bench.md", "bench.json", "latency.svg", "latency.png"] {
         assert!(p.path(f).exists(), "{f}");
     }

@@ -5,7 +5,8 @@
 //! (VmRSS, sampled while they run: after a warm-up and at the end), and `skin_max_sensors`
 //! searches the largest sensor count the shared layout serves at 1 kHz with zero loss.
 
-use std::process::Child;
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use taxel_runtime::sensors::MAX_SENSORS;
@@ -96,6 +97,9 @@ fn interrupt(c: &mut Child) {
     let _ = c.wait();
 }
 
+/// What the probe skips before it measures (s).
+const SKIP_S: f64 = 1.0;
+
 /// Resident memory (VmRSS) of a process in KiB, from /proc (0 when it is gone).
 fn rss_kib(pid: u32) -> u64 {
     std::fs::read_to_string(format!("/proc/{pid}/status"))
@@ -139,7 +143,17 @@ impl Proc {
     }
 }
 
-/// `role run --sensor LIST ARGS...` (one process per sensor, or one for all).
+/// `role [run] --sensor LIST ARGS...` (one process per sensor, or one for all).
+fn role_args(role: &str, group: &str, args: &[String]) -> Vec<String> {
+    let mut a = vec![s(role)];
+    if role != "publisher" {
+        a.push(s("run"));
+    }
+    a.extend([s("--sensor"), s(group)]);
+    a.extend_from_slice(args);
+    a
+}
+
 fn start_role(
     procs: &mut Vec<Proc>,
     role: &'static str,
@@ -148,20 +162,62 @@ fn start_role(
     prefix: &str,
 ) -> anyhow::Result<()> {
     for g in groups {
-        let mut a = vec![s(role)];
-        if role != "publisher" {
-            a.push(s("run"));
+        procs.push(Proc::new(role, taxel(&role_args(role, g, args), prefix)?));
+    }
+    Ok(())
+}
+
+/// Starts the publishers and waits (at most `limit`) until every one has opened its services
+/// and sends: its "publisher ready" line on stderr (read to the end by a thread, so the pipe
+/// never fills).
+fn start_publishers(
+    procs: &mut Vec<Proc>,
+    groups: &[String],
+    args: &[String],
+    prefix: &str,
+    limit: Duration,
+) -> anyhow::Result<()> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    for g in groups {
+        let mut child = Command::new(std::env::current_exe()?)
+            .args(role_args("publisher", g, args))
+            .env("TAXEL_PREFIX", prefix)
+            .env("RUST_LOG", "warn,taxel_publisher=info")
+            .env("NO_COLOR", "1")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()?;
+        let ready = if g.contains(',') {
+            "publisher ready for every sensor"
+        } else {
+            "publisher ready on"
+        };
+        if let Some(err) = child.stderr.take() {
+            let tx = tx.clone();
+            std::thread::spawn(move || {
+                for l in BufReader::new(err).lines().map_while(Result::ok) {
+                    if l.contains(ready) {
+                        let _ = tx.send(());
+                    }
+                }
+            });
         }
-        a.extend([s("--sensor"), g.clone()]);
-        a.extend_from_slice(args);
-        procs.push(Proc::new(role, taxel(&a, prefix)?));
+        procs.push(Proc::new("publisher", child));
+    }
+    let t0 = Instant::now();
+    for _ in groups {
+        let left = limit.saturating_sub(t0.elapsed());
+        rx.recv_timeout(left)
+            .map_err(|_| anyhow::anyhow!("publishers not ready within {limit:?}"))?;
     }
     Ok(())
 }
 
 /// Runs a skin of `k.sensors` simulated 4 x 4 sensors at `k.rate` Hz: publishers, estimators
 /// (configured curvature: the per-frame no-load detection, no model) and calibrators in the
-/// layout asked for, then one probe on every force stream for `k.secs` once the frames flow.
+/// layout asked for, then one probe on every force stream for `k.secs` once every publisher is
+/// ready and the probe itself has joined (it skips its first second).
 /// CPU is counted over the probe's window, resident memory sampled every `secs / 20` (at
 /// least every 0.5 s): after a warm-up of a fifth of the window and at its end.
 pub(crate) fn skin(case: &str, k: Skin, n: usize, cal: &str) -> anyhow::Result<CaseResult> {
@@ -196,7 +252,8 @@ fn run_skin(
     procs: &mut Vec<Proc>,
 ) -> anyhow::Result<CaseResult> {
     let consumers = 2 * groups.len();
-    let patience = Duration::from_secs_f64(10.0 + 0.05 * (3 * groups.len()) as f64);
+    let patience =
+        Duration::from_secs_f64(10.0 + 0.2 * (3 * groups.len()) as f64 + 0.1 * k.sensors as f64);
     start_role(
         procs,
         "calibrator",
@@ -213,9 +270,9 @@ fn run_skin(
     )?;
     wait_nodes_for(prefix, consumers, patience);
     let sim = [s("sim"), s("--rate-hz"), k.rate.to_string()];
-    start_role(procs, "publisher", groups, &sim, prefix)?;
-    wait_nodes_for(prefix, consumers + groups.len(), patience);
-    // The probe measures the streams once they flow (its own start-up is not counted).
+    start_publishers(procs, groups, &sim, prefix, patience)?;
+    // The probe measures the streams once they flow, and skips its own joining (the
+    // calibrators connect it to their force streams while they send).
     std::thread::sleep(Duration::from_millis(500));
     let mut probe = taxel(
         &[
@@ -224,11 +281,14 @@ fn run_skin(
             names.join(","),
             s("--seconds"),
             k.secs.to_string(),
+            s("--skip-s"),
+            SKIP_S.to_string(),
             s("--json"),
         ],
         prefix,
     )?;
     wait_nodes_for(prefix, consumers + groups.len() + 1, patience);
+    std::thread::sleep(Duration::from_secs_f64(SKIP_S));
     let t0 = Instant::now();
     for p in procs.iter_mut() {
         p.cpu0 = cpu_of(p.child.id());
