@@ -17,6 +17,7 @@ use taxel_msgs::{
 };
 
 use super::flat::{self, Flat};
+use super::inorder;
 use crate::records::{shape_of, Record};
 
 /// Schema names (the message types of docs/messages.md).
@@ -428,30 +429,43 @@ pub(super) fn decode_flat(
     fill_flat(declared, data, &mut r).then_some(r)
 }
 
-/// Fills `slot` (overwriting it) from a message on the fast path ([`flat`]); false when the
-/// general path must decide (then `slot` holds anything).
-fn fill_flat(declared: Option<&[String]>, data: &[u8], slot: &mut Record) -> bool {
-    let Some(obj) = Flat::scan(data) else {
-        return false;
+/// [`decode`] on the fastest path alone ([`inorder`]); `None` when another path must decide.
+#[cfg(test)]
+pub(super) fn decode_in_order(schema: &str, data: &[u8]) -> Option<Record> {
+    let mut r = zero(schema)?;
+    let ok = match &mut r {
+        Record::Raw(m) => inorder::fill(data, &mut **m),
+        Record::Curvature(m) => inorder::fill(data, &mut **m),
+        Record::Force(m) => inorder::fill(data, m),
+        Record::Reference(m) => inorder::fill(data, m),
     };
+    ok.then_some(r)
+}
+
+/// Fills `slot` (overwriting it) from a message on the fast paths: the writer's exact layout
+/// ([`inorder`]), else any flat object ([`flat`]); false when the general path must decide
+/// (then `slot` holds anything).
+fn fill_flat(declared: Option<&[String]>, data: &[u8], slot: &mut Record) -> bool {
+    /// Tries the paths in turn, each from a zero payload. Estimates written before they
+    /// carried their shape (`shaped`: neither `rows` nor `cols`) take the general path.
+    fn fill<M: Message>(declared: Option<&[String]>, data: &[u8], m: &mut M, shaped: bool) -> bool {
+        *m = M::zero();
+        if inorder::fill(data, m) {
+            return true;
+        }
+        let Some(obj) = Flat::scan(data) else {
+            return false;
+        };
+        if shaped && !obj.has("rows") && !obj.has("cols") {
+            return false;
+        }
+        *m = M::zero();
+        flat::fill(&obj, declared, m)
+    }
     match slot {
-        Record::Raw(m) => {
-            **m = RawFrame::ZERO;
-            flat::fill(&obj, declared, &mut **m)
-        }
-        // Estimates written before they carried their shape take the general path.
-        Record::Curvature(_) if !obj.has("rows") && !obj.has("cols") => false,
-        Record::Curvature(m) => {
-            **m = CurvatureEstimate::ZERO;
-            flat::fill(&obj, declared, &mut **m)
-        }
-        Record::Force(m) => {
-            *m = ForceSample::ZERO;
-            flat::fill(&obj, declared, m)
-        }
-        Record::Reference(m) => {
-            *m = Reference::ZERO;
-            flat::fill(&obj, declared, m)
-        }
+        Record::Raw(m) => fill(declared, data, &mut **m, false),
+        Record::Curvature(m) => fill(declared, data, &mut **m, true),
+        Record::Force(m) => fill(declared, data, m, false),
+        Record::Reference(m) => fill(declared, data, m, false),
     }
 }

@@ -7,6 +7,7 @@
 //! `null` and read back as NaN. Layout documented in docs/formats.md.
 
 mod flat;
+mod inorder;
 mod json;
 mod read;
 mod walk;
@@ -627,6 +628,8 @@ mod tests {
             let data = encode(&r);
             let fast = json::decode_flat(schema(&r), None, &data).expect("fast path");
             assert!(same(&fast, &r), "{fast:?}\n{r:?}");
+            let fastest = json::decode_in_order(schema(&r), &data).expect("fastest path");
+            assert!(same(&fastest, &r), "{fastest:?}\n{r:?}");
         }
     }
 
@@ -651,6 +654,12 @@ mod tests {
             ("\"s0\"", "\"s0\\\"\""),
             (":1023.0", ":1e400"),
             (":1023.0", ":1.5E2"),
+            (":1023.0", ":null"),
+            (":1023.0", ":-0.0"),
+            (":1023.0", ":102.30e1"),
+            ("\"s0\"", "\"\""),
+            ("\"seq\":1,", "\"seq\":18446744073709551615,"),
+            ("\"seq\":1,", "\"seq\":18446744073709551616,"),
             (":1023.0", ":-.5"),
             (":1023.0", ":{\"a\":1}"),
             ("[", "[1,"),
@@ -660,13 +669,18 @@ mod tests {
             ("}", ",}"),
             ("{", "["),
         ];
-        let (mut fast_n, mut general_n) = (0, 0);
+        let (mut fast_n, mut general_n, mut in_order_n) = (0, 0, 0);
         for r in records() {
             let data = String::from_utf8(encode(&r)).expect("utf-8");
             for (from, to) in edits {
                 let Some(at) = data.find(from) else { continue };
                 let edited = format!("{}{to}{}", &data[..at], &data[at + from.len()..]);
                 let general = json::decode_general(schema(&r), None, edited.as_bytes());
+                if let Some(fastest) = json::decode_in_order(schema(&r), edited.as_bytes()) {
+                    in_order_n += 1;
+                    let general = general.as_ref().expect("the general path reads it too");
+                    assert!(same(&fastest, general), "{edited}");
+                }
                 match json::decode_flat(schema(&r), None, edited.as_bytes()) {
                     Some(fast) => {
                         fast_n += 1;
@@ -689,8 +703,8 @@ mod tests {
         }
         // Both paths were exercised.
         assert!(
-            fast_n >= 12 && general_n >= 40,
-            "{fast_n} fast, {general_n} general"
+            fast_n >= 12 && general_n >= 40 && (4..fast_n).contains(&in_order_n),
+            "{fast_n} fast, {general_n} general, {in_order_n} in order"
         );
     }
 }
