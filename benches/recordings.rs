@@ -1,6 +1,7 @@
 //! Reading a 10-minute 4 x 4 recording at 1 kHz (600 000 raw frames, 600 000 force samples,
 //! 600 000 reference values, as `taxel logger record` writes them) from the record file and
-//! from its MCAP export: the offline paths under the Python package's `read_recording`.
+//! from its MCAP export: the offline paths under the Python package's `read_recording` (which
+//! reads MCAP as `mcap views` does; `mcap` hands over an owned copy of each message).
 //! Run: `cargo bench --bench recordings` (writes about 600 MB of temporary files; with
 //! `TAXEL_BENCH_KEEP=DIR` they are written to DIR and kept, e.g. to time the Python package on
 //! them).
@@ -97,6 +98,13 @@ fn bench(c: &mut Criterion) {
         b.iter(|| {
             let mut n = 0u64;
             taxel_formats::mcap::for_each(&mcap, |m| n += m.record.seq() & 1).expect("read");
+            black_box(n)
+        })
+    });
+    g.bench_function("mcap views", |b| {
+        b.iter(|| {
+            let mut n = 0u64;
+            taxel_formats::mcap::for_each_view(&mcap, |m| n += m.record.seq() & 1).expect("read");
             black_box(n)
         })
     });

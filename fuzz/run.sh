@@ -25,7 +25,7 @@ here="$(cd "$(dirname "$0")" && pwd)"
 root="$(dirname "$here")"
 secs="${1:-300}"
 shift || true
-all=(serial_binary serial_ascii recording_csv record_file calibration curvature_model)
+all=(serial_binary serial_ascii recording_csv record_file mcap calibration curvature_model)
 targets=("$@")
 [ ${#targets[@]} -eq 0 ] && targets=("${all[@]}")
 

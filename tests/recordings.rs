@@ -187,3 +187,80 @@ fn demo_recording_exports_to_mcap_and_replays_from_it() {
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("cut.mcap: unreadable after"), "{err}");
 }
+
+/// Frames that never reached the logger (lost upstream: a bridge's link, a buffer that
+/// overflowed) leave no silent hole: the first raw frame and force sample after each jump in
+/// `seq` carry `GAP_BEFORE` in the file, and nothing else does.
+#[test]
+fn frames_lost_before_the_logger_are_marked_in_its_file() {
+    use taxel_msgs::{force_flags, raw_flags, sensor_id_bytes, ForceSample, RawFrame, Stream};
+    use taxel_runtime::ipc::Ipc;
+
+    let mut p = pipeline!("lg");
+    let rec = p.path("gaps.taxrec");
+    let logger = p.logger("g0", &p.arg("gaps.taxrec"), &[]);
+    let ipc = Ipc::open(&p.prefix, "test-gaps").expect("node");
+    let raw = ipc.publisher::<RawFrame>("g0", Stream::Raw).expect("raw");
+    let force = ipc
+        .publisher::<ForceSample>("g0", Stream::Force)
+        .expect("force");
+    let id = sensor_id_bytes("g0").expect("id");
+    // 300 frames at 500 Hz; 10 missing after seq 99, one after seq 199.
+    let missing = |s: u64| (100..110).contains(&s) || s == 200;
+    for seq in (0..300u64).filter(|&s| !missing(s)) {
+        let mut f = RawFrame::ZERO;
+        (f.seq, f.sensor, f.rows, f.cols) = (seq, id, 4, 4);
+        f.t_capture_ns = taxel_runtime::now_ns();
+        raw.send(&f).expect("send raw");
+        let mut s = ForceSample::ZERO;
+        (s.seq, s.sensor, s.t_capture_ns) = (seq, id, f.t_capture_ns);
+        force.send(&s).expect("send force");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    p[logger].sigint();
+    p.finish(logger, Duration::from_secs(20));
+    let log = p[logger].output();
+
+    let (mut raw_seen, mut force_seen) = (Vec::new(), Vec::new());
+    for r in RecordFileReader::open(&rec).expect("record file") {
+        match r {
+            Record::Raw(f) => raw_seen.push((f.seq, f.flags & raw_flags::GAP_BEFORE != 0)),
+            Record::Force(f) => force_seen.push((f.seq, f.flags & force_flags::GAP_BEFORE != 0)),
+            _ => {}
+        }
+    }
+    for (what, seen) in [("raw", &raw_seen), ("force", &force_seen)] {
+        assert!(
+            seen.first().is_some_and(|&(s, _)| s < 100) && seen.len() > 250,
+            "{what}: recorded {} frames from seq {:?}",
+            seen.len(),
+            seen.first()
+        );
+        let flagged: Vec<u64> = seen.iter().filter(|x| x.1).map(|x| x.0).collect();
+        let after_jump: Vec<u64> = seen
+            .windows(2)
+            .filter(|w| w[1].0 != w[0].0 + 1)
+            .map(|w| w[1].0)
+            .collect();
+        assert_eq!(flagged, after_jump, "{what}: flags and jumps differ");
+        // (A loaded machine may make the logger's own buffer overflow too: more flagged
+        // jumps, each still flagged.)
+        assert!(
+            flagged.contains(&110) && flagged.contains(&201),
+            "{what}: flagged {flagged:?}"
+        );
+    }
+    for key in ["raw_missing=", "force_missing="] {
+        let n: u64 = log
+            .split(key)
+            .nth(1)
+            .and_then(|r| r.split_whitespace().next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or_else(|| panic!("no {key} in the logger's summary:\n{log}"));
+        assert!(
+            n >= 11,
+            "{key}{n}: the summary does not count the missing frames"
+        );
+    }
+}

@@ -64,6 +64,8 @@ pub struct BridgeConfig {
     pub insecure_listen: bool,
     /// TLS with mutual authentication (`--tls-cert`, `--tls-key`, `--tls-ca`).
     pub tls: Option<TlsFiles>,
+    /// Compress the link's batches (LZ4; off with `--no-compression`).
+    pub compression: bool,
 }
 
 /// How often the link looks for new and vanished services on both sides.
@@ -220,6 +222,13 @@ impl BridgeConfig {
             "transport/link/tx/queue/congestion_control/drop/wait_before_drop",
             "20000",
         )?;
+        // Fixed-size frames are mostly zeros: compressed, a 4 x 4 raw frame's 4 KiB of counts
+        // cross as a few hundred bytes, which a lossy or slow link can carry at 1 kHz.
+        set(
+            &mut c,
+            "transport/unicast/compression/enabled",
+            if self.compression { "true" } else { "false" },
+        )?;
         if let Some(f) = &self.tls {
             for (key, value) in tls::zenoh_settings(f) {
                 set(&mut c, key, &value)?;
@@ -344,6 +353,7 @@ mod tests {
             run_for: None,
             insecure_listen: false,
             tls: None,
+            compression: true,
         }
     }
 
@@ -550,5 +560,19 @@ mod tests {
         assert_eq!(ps.max_subscribers, MAX_SUBSCRIBERS);
         assert_eq!(ps.publisher_history_size, 1);
         assert!(ps.enable_safe_overflow);
+    }
+
+    #[test]
+    fn the_link_is_compressed_unless_told_not_to() {
+        let on = |c: &BridgeConfig| {
+            c.zenoh()
+                .expect("zenoh config")
+                .get_json("transport/unicast/compression/enabled")
+                .expect("key")
+        };
+        let mut c = cfg();
+        assert_eq!(on(&c), "true");
+        c.compression = false;
+        assert_eq!(on(&c), "false");
     }
 }

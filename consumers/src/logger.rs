@@ -12,9 +12,12 @@ use clap::{Parser, Subcommand};
 use iceoryx2::prelude::*;
 use taxel_formats::mcap::McapRecordWriter;
 use taxel_formats::{CsvExport, RecordFileReader, RecordFileWriter};
-use taxel_msgs::{raw_flags, CurvatureEstimate, ForceSample, Message, RawFrame, Reference, Stream};
+use taxel_msgs::{
+    force_flags, raw_flags, CurvatureEstimate, ForceSample, Message, RawFrame, Reference, Stream,
+};
 use taxel_runtime::ipc::{self, Ipc, StreamSubscriber};
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
+use taxel_runtime::stats::SeqTracker;
 use taxel_runtime::Shutdown;
 use tracing::{error, info, warn};
 
@@ -90,7 +93,10 @@ struct Subs {
 /// records that cannot be buffered are dropped and counted, and the next raw frame of a sensor
 /// that lost records is written with `GAP_BEFORE` so the file marks the gap. Records the
 /// writer already holds are not dropped: they reach the file, in order, once writing works
-/// again, so everything before the gap stays intact.
+/// again, so everything before the gap stays intact. Frames that never reached the logger
+/// (lost upstream: a bridge's link, a subscriber buffer that overflowed) are marked the same
+/// way: a raw frame or force sample whose `seq` jumps over missing ones gets `GAP_BEFORE`, so
+/// no hole in the file is silent.
 struct Sink {
     w: RecordFileWriter,
     records: u64,
@@ -100,6 +106,9 @@ struct Sink {
     failing: bool,
     /// Per sensor: records were lost since its last written raw frame.
     gap: Vec<bool>,
+    /// Per sensor: the raw and force `seq` seen, for frames missing before they arrived.
+    raw_seq: Vec<SeqTracker>,
+    force_seq: Vec<SeqTracker>,
 }
 
 impl Sink {
@@ -111,7 +120,15 @@ impl Sink {
             lost_at_failure: 0,
             failing: false,
             gap: vec![false; sensors],
+            raw_seq: vec![SeqTracker::default(); sensors],
+            force_seq: vec![SeqTracker::default(); sensors],
         }
+    }
+
+    /// Raw frames and force samples that never reached the logger (gaps in their `seq`).
+    fn missing(&self) -> (u64, u64) {
+        let sum = |t: &[SeqTracker]| t.iter().map(|t| t.dropped).sum();
+        (sum(&self.raw_seq), sum(&self.force_seq))
     }
 
     fn fail(&mut self, what: &str, e: &taxel_formats::records::RecordError) {
@@ -137,10 +154,21 @@ impl Sink {
         }
     }
 
-    /// Appends a raw frame of sensor `i`, flagged `GAP_BEFORE` after a loss.
+    /// Appends a force sample of sensor `i`, flagged `GAP_BEFORE` when samples are missing
+    /// before it.
+    fn append_force(&mut self, i: usize, f: &ForceSample) {
+        let mut f = *f;
+        if self.force_seq[i].observe(f.seq) > 0 {
+            f.flags |= force_flags::GAP_BEFORE;
+        }
+        self.append(i, &f);
+    }
+
+    /// Appends a raw frame of sensor `i`, flagged `GAP_BEFORE` after a loss (its own, or
+    /// frames missing before it arrived).
     fn append_raw(&mut self, i: usize, f: &RawFrame) {
         let mut f = *f;
-        if self.gap[i] {
+        if self.raw_seq[i].observe(f.seq) > 0 || self.gap[i] {
             f.flags |= raw_flags::GAP_BEFORE;
         }
         match self.w.append_message(&f) {
@@ -237,7 +265,7 @@ fn record(common: &CommonArgs, a: RecordArgs) -> Result<(), Failure> {
                         r = r.and(s.curvature.drain(|e| sink.append(i, e)));
                     }
                     if hit(2) {
-                        r = r.and(s.force.drain(|f| sink.append(i, f)));
+                        r = r.and(s.force.drain(|f| sink.append_force(i, f)));
                     }
                     if hit(3) {
                         r = r.and(s.reference.drain(|v| sink.append(i, v)));
@@ -258,6 +286,7 @@ fn record(common: &CommonArgs, a: RecordArgs) -> Result<(), Failure> {
         }
     }
     sink.flush();
+    let (raw_missing, force_missing) = sink.missing();
     let Sink {
         w, records, lost, ..
     } = sink;
@@ -275,6 +304,8 @@ fn record(common: &CommonArgs, a: RecordArgs) -> Result<(), Failure> {
     info!(
         records,
         lost,
+        raw_missing,
+        force_missing,
         bytes,
         file = %a.out.display(),
         "logger stopped"

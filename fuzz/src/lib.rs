@@ -46,6 +46,13 @@ pub fn record_file(data: &[u8]) {
     }
 }
 
+/// The MCAP reader: the walker, and where it stops (a compressed chunk) the `mcap` crate.
+pub fn mcap(data: &[u8]) {
+    let path = std::path::Path::new("fuzz.mcap");
+    let mut n = 0u64;
+    let _ = taxel_formats::mcap::for_each_view_in(path, data, |m| n += m.record.seq() & 1);
+}
+
 /// The calibration loader (TOML text and validation).
 pub fn calibration(data: &[u8]) {
     if let Ok(text) = std::str::from_utf8(data) {

@@ -7,11 +7,12 @@ use std::path::Path;
 fn corpus_replays_without_panics() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("corpus");
     type Target = (&'static str, fn(&[u8]));
-    let targets: [Target; 6] = [
+    let targets: [Target; 7] = [
         ("serial_binary", taxel_fuzz::serial_binary),
         ("serial_ascii", taxel_fuzz::serial_ascii),
         ("recording_csv", taxel_fuzz::recording_csv),
         ("record_file", taxel_fuzz::record_file),
+        ("mcap", taxel_fuzz::mcap),
         ("calibration", taxel_fuzz::calibration),
         ("curvature_model", taxel_fuzz::curvature_model),
     ];

@@ -119,7 +119,7 @@ struct Streams {
 }
 
 impl Streams {
-    fn add(&mut self, mut rec: Record, sensor: Option<&str>) {
+    fn add(&mut self, rec: &mut Record, sensor: Option<&str>) {
         if sensor.is_some_and(|s| s != rec.sensor()) {
             return;
         }
@@ -132,7 +132,7 @@ impl Streams {
                 self.order.len() - 1
             }
         };
-        self.by_name[i].add(&mut rec);
+        self.by_name[i].add(rec);
     }
 }
 
@@ -163,8 +163,8 @@ fn read_taxrec(py: Python<'_>, path: &Path, sensor: Option<&str>) -> PyResult<St
         .detach(|| {
             let mut reader = RecordFileReader::open(path).map_err(|e| e.to_string())?;
             let mut streams = Streams::default();
-            for rec in reader.by_ref() {
-                streams.add(rec, sensor);
+            for mut rec in reader.by_ref() {
+                streams.add(&mut rec, sensor);
             }
             let stop = reader
                 .stop_position()
@@ -196,7 +196,7 @@ fn read_taxrec(py: Python<'_>, path: &Path, sensor: Option<&str>) -> PyResult<St
 fn read_mcap(py: Python<'_>, path: &Path, sensor: Option<&str>) -> PyResult<Streams> {
     py.detach(|| {
         let mut streams = Streams::default();
-        taxel_formats::mcap::for_each(path, |m| streams.add(m.record, sensor))?;
+        taxel_formats::mcap::for_each_view(path, |m| streams.add(m.record, sensor))?;
         Ok::<_, taxel_formats::mcap::McapError>(streams)
     })
     .map_err(taxel_err)

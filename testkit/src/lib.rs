@@ -3,9 +3,14 @@
 //! on for a line (or its n-th occurrence) or for its exit with a deadline, stopped with SIGINT
 //! as Ctrl-C would, and killed when the test ends early; and the [`Pipeline`] fixture that
 //! every multi-process test starts its processes with (unique prefix, temporary directory,
-//! each role's start-up, teardown). Test support only; nothing here ships.
+//! each role's start-up, teardown); the helpers of relay tests (`relay`: bridges, a raw-frame
+//! publisher and far-side receiver, delivery counts) and a network link emulated in user
+//! space (`netem`: delay, loss and cuts between two network namespaces). Test support only;
+//! nothing here ships.
 
+pub mod netem;
 mod pipeline;
+pub mod relay;
 
 pub use pipeline::{replace, shm_files, unique_prefix, Pipeline, Role, LIMIT};
 

@@ -42,12 +42,12 @@ fn ws(b: &[u8], mut i: usize) -> usize {
     i
 }
 
-fn number_byte(c: u8) -> bool {
+pub(super) fn number_byte(c: u8) -> bool {
     c.is_ascii_digit() || matches!(c, b'-' | b'+' | b'.' | b'e' | b'E')
 }
 
 /// A JSON number, as parsed: `mantissa` x 10^`exp10` with every digit kept when `exact`.
-struct Number {
+pub(super) struct Number {
     negative: bool,
     mantissa: u64,
     exp10: i32,
@@ -59,52 +59,44 @@ struct Number {
 
 /// Parses `s` as exactly one JSON number (grammar of RFC 8259), or `None`.
 fn number(s: &[u8]) -> Option<Number> {
-    let mut i = 0;
-    let mut n = Number {
-        negative: false,
-        mantissa: 0,
-        exp10: 0,
-        integer: true,
-        exact: true,
-    };
-    let mut digits = 0u32;
-    let mut push = |n: &mut Number, d: u8| {
-        digits += 1;
-        if digits > 19 {
-            n.exact = false;
-        } else {
-            n.mantissa = n.mantissa * 10 + u64::from(d - b'0');
+    number_prefix(s).and_then(|(n, len)| (len == s.len()).then_some(n))
+}
+
+/// Parses the JSON number at the start of `s`: the number and how many bytes it takes, or
+/// `None` when `s` does not start with one.
+#[inline(always)]
+pub(super) fn number_prefix(s: &[u8]) -> Option<(Number, usize)> {
+    let negative = s.first() == Some(&b'-');
+    let mut i = usize::from(negative);
+    // Digits are accumulated with wrapping arithmetic: past 19 of them the mantissa is not
+    // exact and is not used.
+    let mut mantissa = 0u64;
+    let mut kept = match s.get(i) {
+        // A leading zero stands alone and is no digit of the mantissa.
+        Some(b'0') => {
+            i += 1;
+            0
         }
-    };
-    if s.first() == Some(&b'-') {
-        n.negative = true;
-        i += 1;
-    }
-    match s.get(i) {
-        Some(b'0') => i += 1,
         Some(b'1'..=b'9') => {
-            while let Some(&d @ b'0'..=b'9') = s.get(i) {
-                push(&mut n, d);
-                i += 1;
-            }
+            let start = i;
+            i = digits(s, i, &mut mantissa);
+            i - start
         }
         _ => return None,
-    }
+    };
+    let (mut exp10, mut integer) = (0i32, true);
     if s.get(i) == Some(&b'.') {
-        n.integer = false;
-        i += 1;
-        let start = i;
-        while let Some(&d @ b'0'..=b'9') = s.get(i) {
-            push(&mut n, d);
-            n.exp10 -= 1;
-            i += 1;
-        }
+        integer = false;
+        let start = i + 1;
+        i = digits(s, start, &mut mantissa);
         if i == start {
             return None;
         }
+        kept += i - start;
+        exp10 = i32::try_from(i - start).map_or(i32::MIN, |k| -k);
     }
     if matches!(s.get(i), Some(b'e' | b'E')) {
-        n.integer = false;
+        integer = false;
         i += 1;
         let negative = match s.get(i) {
             Some(b'-') => (i += 1, true).1,
@@ -120,9 +112,30 @@ fn number(s: &[u8]) -> Option<Number> {
         if i == start {
             return None;
         }
-        n.exp10 = n.exp10.saturating_add(if negative { -e } else { e });
+        exp10 = exp10.saturating_add(if negative { -e } else { e });
     }
-    (i == s.len()).then_some(n)
+    let n = Number {
+        negative,
+        mantissa,
+        exp10,
+        integer,
+        exact: kept <= 19,
+    };
+    Some((n, i))
+}
+
+/// Reads decimal digits from `i` on into `m`; where they end.
+#[inline]
+fn digits(s: &[u8], mut i: usize, m: &mut u64) -> usize {
+    while let Some(&c) = s.get(i) {
+        let d = c.wrapping_sub(b'0');
+        if d > 9 {
+            break;
+        }
+        *m = m.wrapping_mul(10).wrapping_add(u64::from(d));
+        i += 1;
+    }
+    i
 }
 
 /// Powers of ten that a double holds exactly.
@@ -133,7 +146,12 @@ const POW10: [f64; 23] = [
 
 /// The correctly rounded double of a number's bytes; `None` when not a number or too large.
 fn float_of(s: &[u8]) -> Option<f64> {
-    let n = number(s)?;
+    to_f64(&number(s)?, s)
+}
+
+/// The correctly rounded double of `n`, parsed from `s`; `None` when too large.
+#[inline]
+pub(super) fn to_f64(n: &Number, s: &[u8]) -> Option<f64> {
     // Clinger's fast path: an exact mantissa and power of ten give one correctly rounded
     // operation. Anything else goes to the standard library's parser.
     let x = if n.exact && n.mantissa < (1 << 53) && n.exp10.unsigned_abs() < 23 {
@@ -153,7 +171,11 @@ fn float_of(s: &[u8]) -> Option<f64> {
 
 /// A number's bytes as an integer, when it is written as one that fits.
 fn int_of(s: &[u8]) -> Option<i128> {
-    let n = number(s)?;
+    to_int(&number(s)?)
+}
+
+/// `n` as an integer, when it is written as one that fits.
+pub(super) fn to_int(n: &Number) -> Option<i128> {
     // The general path reads `-0` as a float, which no integer field takes.
     if !n.integer || !n.exact || (n.negative && n.mantissa == 0) {
         return None;

@@ -17,6 +17,7 @@ use taxel_msgs::{
 };
 
 use super::flat::{self, Flat};
+use super::inorder;
 use crate::records::{shape_of, Record};
 
 /// Schema names (the message types of docs/messages.md).
@@ -314,15 +315,67 @@ fn read<M: Message>(obj: &Map<String, Value>, declared: Option<&[String]>) -> Re
     r.err.map_or(Ok(m), Err)
 }
 
-/// Decodes a message of schema `schema` whose channel declared the fields `declared`.
+/// Decodes a message of schema `schema` whose channel declared the fields `declared`, as
+/// the readers do ([`Slots::decode`]).
+#[cfg(test)]
 pub(super) fn decode(
     schema: &str,
     declared: Option<&[String]>,
     data: &[u8],
 ) -> Result<Record, String> {
-    match decode_flat(schema, declared, data) {
-        Some(r) => Ok(r),
-        None => decode_general(schema, declared, data),
+    Slots::default().decode(schema, declared, data).cloned()
+}
+
+/// One payload per message type, reused from message to message: decoding a message fills
+/// the payload of its type in place (no allocation on the fast path).
+pub(super) struct Slots {
+    raw: Record,
+    curvature: Record,
+    force: Record,
+    reference: Record,
+}
+
+impl Default for Slots {
+    fn default() -> Slots {
+        Slots {
+            raw: RawFrame::ZERO.into(),
+            curvature: CurvatureEstimate::ZERO.into(),
+            force: ForceSample::ZERO.into(),
+            reference: Reference::ZERO.into(),
+        }
+    }
+}
+
+impl Slots {
+    /// Decodes a message of schema `schema` whose channel declared the fields `declared` into
+    /// the payload of its type, and returns it (the fast path, else the general path, which
+    /// names the error).
+    pub(super) fn decode(
+        &mut self,
+        schema: &str,
+        declared: Option<&[String]>,
+        data: &[u8],
+    ) -> Result<&mut Record, String> {
+        let slot = match schema {
+            RAW_SCHEMA => &mut self.raw,
+            CURVATURE_SCHEMA => &mut self.curvature,
+            FORCE_SCHEMA => &mut self.force,
+            REFERENCE_SCHEMA => &mut self.reference,
+            other => {
+                return Err(match decode_general(other, declared, data) {
+                    Err(e) => e,
+                    Ok(_) => format!("unknown schema {other:?}"),
+                })
+            }
+        };
+        // The caller may have changed the payload it was handed.
+        if slot.name() != schema {
+            *slot = zero(schema).ok_or_else(|| format!("unknown schema {schema:?}"))?;
+        }
+        if !fill_flat(declared, data, slot) {
+            *slot = decode_general(schema, declared, data)?;
+        }
+        Ok(slot)
     }
 }
 
@@ -354,34 +407,65 @@ pub(super) fn decode_general(
     })
 }
 
+/// An all-zero payload of schema `schema`.
+fn zero(schema: &str) -> Option<Record> {
+    Some(match schema {
+        RAW_SCHEMA => RawFrame::ZERO.into(),
+        CURVATURE_SCHEMA => CurvatureEstimate::ZERO.into(),
+        FORCE_SCHEMA => ForceSample::ZERO.into(),
+        REFERENCE_SCHEMA => Reference::ZERO.into(),
+        _ => return None,
+    })
+}
+
 /// [`decode`] on the fast path ([`flat`]); `None` when the general path must decide.
+#[cfg(test)]
 pub(super) fn decode_flat(
     schema: &str,
     declared: Option<&[String]>,
     data: &[u8],
 ) -> Option<Record> {
-    let obj = Flat::scan(data)?;
-    // Large payloads are filled in place, on the heap.
-    let (ok, r) = match schema {
-        RAW_SCHEMA => {
-            let mut m = Box::new(RawFrame::ZERO);
-            (flat::fill(&obj, declared, &mut *m), Record::Raw(m))
-        }
-        // Estimates written before they carried their shape take the general path.
-        CURVATURE_SCHEMA if !obj.has("rows") && !obj.has("cols") => return None,
-        CURVATURE_SCHEMA => {
-            let mut m = Box::new(CurvatureEstimate::ZERO);
-            (flat::fill(&obj, declared, &mut *m), Record::Curvature(m))
-        }
-        FORCE_SCHEMA => {
-            let mut m = ForceSample::ZERO;
-            (flat::fill(&obj, declared, &mut m), Record::Force(m))
-        }
-        REFERENCE_SCHEMA => {
-            let mut m = Reference::ZERO;
-            (flat::fill(&obj, declared, &mut m), Record::Reference(m))
-        }
-        _ => return None,
+    let mut r = zero(schema)?;
+    fill_flat(declared, data, &mut r).then_some(r)
+}
+
+/// [`decode`] on the fastest path alone ([`inorder`]); `None` when another path must decide.
+#[cfg(test)]
+pub(super) fn decode_in_order(schema: &str, data: &[u8]) -> Option<Record> {
+    let mut r = zero(schema)?;
+    let ok = match &mut r {
+        Record::Raw(m) => inorder::fill(data, &mut **m),
+        Record::Curvature(m) => inorder::fill(data, &mut **m),
+        Record::Force(m) => inorder::fill(data, m),
+        Record::Reference(m) => inorder::fill(data, m),
     };
     ok.then_some(r)
+}
+
+/// Fills `slot` (overwriting it) from a message on the fast paths: the writer's exact layout
+/// ([`inorder`]), else any flat object ([`flat`]); false when the general path must decide
+/// (then `slot` holds anything).
+fn fill_flat(declared: Option<&[String]>, data: &[u8], slot: &mut Record) -> bool {
+    /// Tries the paths in turn, each from a zero payload. Estimates written before they
+    /// carried their shape (`shaped`: neither `rows` nor `cols`) take the general path.
+    fn fill<M: Message>(declared: Option<&[String]>, data: &[u8], m: &mut M, shaped: bool) -> bool {
+        *m = M::zero();
+        if inorder::fill(data, m) {
+            return true;
+        }
+        let Some(obj) = Flat::scan(data) else {
+            return false;
+        };
+        if shaped && !obj.has("rows") && !obj.has("cols") {
+            return false;
+        }
+        *m = M::zero();
+        flat::fill(&obj, declared, m)
+    }
+    match slot {
+        Record::Raw(m) => fill(declared, data, &mut **m, false),
+        Record::Curvature(m) => fill(declared, data, &mut **m, true),
+        Record::Force(m) => fill(declared, data, m, false),
+        Record::Reference(m) => fill(declared, data, m, false),
+    }
 }

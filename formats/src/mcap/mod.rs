@@ -7,8 +7,10 @@
 //! `null` and read back as NaN. Layout documented in docs/formats.md.
 
 mod flat;
+mod inorder;
 mod json;
 mod read;
+mod walk;
 
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
@@ -45,6 +47,14 @@ pub enum McapError {
         index: usize,
         error: ::mcap::McapError,
     },
+    #[error("{path}: unreadable after {index} messages: {what} at byte {at}: {error}")]
+    Record {
+        path: PathBuf,
+        index: usize,
+        what: &'static str,
+        at: u64,
+        error: ::mcap::McapError,
+    },
     #[error("{path}: message {index} on {topic}: {reason}")]
     Message {
         path: PathBuf,
@@ -71,14 +81,23 @@ pub struct McapRecordWriter {
 
 impl McapRecordWriter {
     pub fn create(path: &Path) -> Result<McapRecordWriter, McapError> {
+        let options = ::mcap::WriteOptions::new()
+            .compression(None)
+            .profile("")
+            .library(concat!("taxel/", env!("CARGO_PKG_VERSION")));
+        McapRecordWriter::with_options(path, options)
+    }
+
+    /// [`McapRecordWriter::create`] with other chunking (tests of the readers).
+    fn with_options(
+        path: &Path,
+        options: ::mcap::WriteOptions,
+    ) -> Result<McapRecordWriter, McapError> {
         let file = File::create(path).map_err(|error| McapError::Io {
             path: path.to_path_buf(),
             error,
         })?;
-        let w = ::mcap::WriteOptions::new()
-            .compression(None)
-            .profile("")
-            .library(concat!("taxel/", env!("CARGO_PKG_VERSION")))
+        let w = options
             .create(BufWriter::new(file))
             .map_err(|error| McapError::Mcap {
                 path: path.to_path_buf(),
@@ -167,38 +186,68 @@ pub struct McapMessage {
     pub record: Record,
 }
 
+/// A message as [`for_each_view`] hands it over, borrowed for the call: `record` is the
+/// reader's own payload of its type, refilled for the next message of that type.
+#[derive(Debug)]
+pub struct McapView<'a> {
+    pub topic: &'a str,
+    pub log_time: u64,
+    pub publish_time: u64,
+    pub sequence: u32,
+    pub record: &'a mut Record,
+}
+
+impl McapView<'_> {
+    /// The message, owned.
+    pub fn to_message(&self) -> McapMessage {
+        McapMessage {
+            topic: self.topic.to_string(),
+            log_time: self.log_time,
+            publish_time: self.publish_time,
+            sequence: self.sequence,
+            record: self.record.clone(),
+        }
+    }
+}
+
 /// Reads every taxel message of an MCAP file, in file order. Channels with other schemas are
 /// an error naming the topic.
 pub fn read_messages(path: &Path) -> Result<Vec<McapMessage>, McapError> {
-    let bytes = std::fs::read(path).map_err(|error| McapError::Io {
-        path: path.to_path_buf(),
-        error,
+    let mut out = Vec::new();
+    for_each_message(path, |m| {
+        out.push(m.to_message());
+        Ok(())
     })?;
-    parse_messages(path, &bytes)
+    Ok(out)
 }
 
 /// Like [`read_messages`], but hands each message to `f` as it is decoded instead of keeping
 /// them all (a long recording's raw frames would take gigabytes).
-pub fn for_each(path: &Path, f: impl FnMut(McapMessage)) -> Result<(), McapError> {
-    let bytes = std::fs::read(path).map_err(|error| McapError::Io {
-        path: path.to_path_buf(),
-        error,
-    })?;
-    let mut f = f;
-    for_each_message(path, &bytes, |m| {
+pub fn for_each(path: &Path, mut f: impl FnMut(McapMessage)) -> Result<(), McapError> {
+    for_each_message(path, |m| {
+        f(m.to_message());
+        Ok(())
+    })
+}
+
+/// Like [`for_each`], without a copy of each message: the fastest way through a file.
+pub fn for_each_view(path: &Path, mut f: impl FnMut(McapView<'_>)) -> Result<(), McapError> {
+    for_each_message(path, |m| {
         f(m);
         Ok(())
     })
 }
 
-/// [`read_messages`] on bytes already read from `path`.
-fn parse_messages(path: &Path, bytes: &[u8]) -> Result<Vec<McapMessage>, McapError> {
-    let mut out = Vec::new();
-    for_each_message(path, bytes, |m| {
-        out.push(m);
+/// [`for_each_view`] on the bytes of a file already in memory (`path` names it in errors).
+pub fn for_each_view_in(
+    path: &Path,
+    bytes: &[u8],
+    mut f: impl FnMut(McapView<'_>),
+) -> Result<(), McapError> {
+    read::for_each_in(path, bytes, |m| {
+        f(m);
         Ok(())
-    })?;
-    Ok(out)
+    })
 }
 
 /// The raw channel of one sensor of an MCAP file, as a recording: `t_s` = `t_capture_ns` / 1e9,
@@ -233,16 +282,12 @@ pub fn read_recording(path: &Path, sensor: Option<&str>) -> Result<McapRecording
         path: path.to_path_buf(),
         reason,
     };
-    let bytes = std::fs::read(path).map_err(|error| McapError::Io {
-        path: path.to_path_buf(),
-        error,
-    })?;
     let mut sensors: Vec<String> = Vec::new();
     let mut frames: Vec<Frame> = Vec::new();
     let mut refs: HashMap<(String, u64), (f64, f64, f64, i64)> = HashMap::new();
     let mut index = 0;
-    for_each_message(path, &bytes, |m| {
-        match &m.record {
+    for_each_message(path, |m| {
+        match &*m.record {
             Record::Raw(f) => {
                 let s = sensor_id_str(&f.sensor).to_string();
                 if !sensors.contains(&s) {
@@ -251,7 +296,7 @@ pub fn read_recording(path: &Path, sensor: Option<&str>) -> Result<McapRecording
                 frames.push(Frame {
                     sensor: s,
                     index,
-                    topic: m.topic.clone(),
+                    topic: m.topic.to_string(),
                     seq: f.seq,
                     t_capture_ns: f.t_capture_ns,
                     rows: f.rows,
@@ -466,6 +511,26 @@ mod tests {
         assert!(e.to_string().contains("glove-1"), "{e}");
     }
 
+    /// The messages of `bytes` (read from `p`) through the walker, and through the `mcap`
+    /// crate.
+    fn both_ways(p: &Path, bytes: &[u8]) -> [Result<Vec<McapMessage>, McapError>; 2] {
+        let mut out = [Vec::new(), Vec::new()];
+        let [walked, streamed] = &mut out;
+        let ends = [
+            read::for_each_in(p, bytes, |m| {
+                walked.push(m.to_message());
+                Ok(())
+            }),
+            read::stream(p, bytes, 0, |m| {
+                streamed.push(m.to_message());
+                Ok(())
+            }),
+        ];
+        let [a, b] = ends;
+        let [x, y] = out;
+        [a.map(|()| x), b.map(|()| y)]
+    }
+
     #[test]
     fn damaged_files_never_panic() {
         let dir = tempfile::tempdir().expect("tempdir");
@@ -477,9 +542,11 @@ mod tests {
         w.finish().expect("finish");
         let bytes = std::fs::read(&good).expect("read");
         let p = dir.path().join("bad.mcap");
-        // Every cut, and a deterministic spread of byte flips: an error or the messages, never
-        // a panic.
+        // Every cut, and a deterministic spread of byte flips: an error naming the file or the
+        // messages, never a panic; where the walker and the crate both read a file, they read
+        // the same messages.
         let mut x = 0x9e37_79b9_u32;
+        let (mut read, mut failed) = (0, 0);
         for k in 0..bytes.len() + 300 {
             let mut b = bytes.clone();
             if k < bytes.len() {
@@ -491,8 +558,24 @@ mod tests {
                 let i = x as usize % b.len();
                 b[i] ^= (x >> 8) as u8 | 1;
             }
-            let _ = parse_messages(&p, &b);
+            match both_ways(&p, &b) {
+                [Ok(a), Ok(b)] => {
+                    read += 1;
+                    assert_eq!(format!("{a:?}"), format!("{b:?}"), "variant {k}");
+                }
+                [Err(e), _] => {
+                    failed += 1;
+                    let e = e.to_string();
+                    assert!(e.starts_with(&format!("{}: ", p.display())), "{e}");
+                    assert!(!e.contains('\n'), "{e}");
+                }
+                [Ok(_), Err(e)] => panic!("variant {k}: the walker reads it, the crate: {e}"),
+            }
         }
+        assert!(
+            read > 0 && failed > bytes.len(),
+            "{read} read, {failed} failed"
+        );
     }
 
     #[test]
@@ -525,6 +608,7 @@ mod tests {
         std::fs::write(&p, &bytes[..bytes.len() / 2]).expect("write");
         let e = read_messages(&p).expect_err("cut short").to_string();
         assert!(e.contains("bad.mcap: unreadable after"), "{e}");
+        assert!(e.contains("record at byte "), "{e}");
         assert_eq!(e.matches("ended in the middle").count(), 1, "{e}");
     }
 
@@ -544,6 +628,8 @@ mod tests {
             let data = encode(&r);
             let fast = json::decode_flat(schema(&r), None, &data).expect("fast path");
             assert!(same(&fast, &r), "{fast:?}\n{r:?}");
+            let fastest = json::decode_in_order(schema(&r), &data).expect("fastest path");
+            assert!(same(&fastest, &r), "{fastest:?}\n{r:?}");
         }
     }
 
@@ -568,6 +654,12 @@ mod tests {
             ("\"s0\"", "\"s0\\\"\""),
             (":1023.0", ":1e400"),
             (":1023.0", ":1.5E2"),
+            (":1023.0", ":null"),
+            (":1023.0", ":-0.0"),
+            (":1023.0", ":102.30e1"),
+            ("\"s0\"", "\"\""),
+            ("\"seq\":1,", "\"seq\":18446744073709551615,"),
+            ("\"seq\":1,", "\"seq\":18446744073709551616,"),
             (":1023.0", ":-.5"),
             (":1023.0", ":{\"a\":1}"),
             ("[", "[1,"),
@@ -577,13 +669,18 @@ mod tests {
             ("}", ",}"),
             ("{", "["),
         ];
-        let (mut fast_n, mut general_n) = (0, 0);
+        let (mut fast_n, mut general_n, mut in_order_n) = (0, 0, 0);
         for r in records() {
             let data = String::from_utf8(encode(&r)).expect("utf-8");
             for (from, to) in edits {
                 let Some(at) = data.find(from) else { continue };
                 let edited = format!("{}{to}{}", &data[..at], &data[at + from.len()..]);
                 let general = json::decode_general(schema(&r), None, edited.as_bytes());
+                if let Some(fastest) = json::decode_in_order(schema(&r), edited.as_bytes()) {
+                    in_order_n += 1;
+                    let general = general.as_ref().expect("the general path reads it too");
+                    assert!(same(&fastest, general), "{edited}");
+                }
                 match json::decode_flat(schema(&r), None, edited.as_bytes()) {
                     Some(fast) => {
                         fast_n += 1;
@@ -606,8 +703,8 @@ mod tests {
         }
         // Both paths were exercised.
         assert!(
-            fast_n >= 12 && general_n >= 40,
-            "{fast_n} fast, {general_n} general"
+            fast_n >= 12 && general_n >= 40 && (4..fast_n).contains(&in_order_n),
+            "{fast_n} fast, {general_n} general, {in_order_n} in order"
         );
     }
 }

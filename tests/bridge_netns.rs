@@ -1,27 +1,41 @@
-//! Two hosts in one machine: network namespaces A and B joined by a veth pair, one bridge in
-//! each (B listens on tls/0.0.0.0, A connects to B's address, certificates of one CA), the
-//! glove's publisher in domain A and a far-side receiver in domain B (iceoryx2 runs on shared
-//! memory, which the namespaces share; only the bridges' traffic crosses the veth). The link is
-//! impaired with `tc netem` (5 ms delay, 1 % loss) where the kernel has it, then cut for 3 s
-//! (both ends of the veth down) and restored. A third namespace C, joined to B by a second veth,
-//! runs a bridge without a certificate and a publisher of the same stream: it is refused and
-//! delivers nothing.
+//! Two hosts in one machine: network namespaces A and B, one `taxel bridge` in each (B listens
+//! on tls/0.0.0.0, A connects to B's address, certificates of one CA), the glove's publisher in
+//! domain A, and in domain B a far-side receiver and a `taxel logger` (iceoryx2 runs on shared
+//! memory, which the namespaces share; only the bridges' traffic crosses between them).
+//!
+//! A and B are joined by a link emulated in user space (taxel-testkit `netem`: two TUN devices
+//! and a thread between them; the development VM's kernel has no `sch_netem`): 5 ms delay each
+//! way and 1 % of the packets dropped at random, then cut for 3 s (every packet dropped, both
+//! ways) and restored. A third namespace C, joined to B by a veth pair, runs a bridge without a
+//! certificate and a publisher of the same stream: it is refused and delivers nothing.
 //!
 //! Measured and printed: loss outside the cut, reordering, age p50/p99, reconnection time after
 //! the cut (link restored to the first frame arriving). Asserted: >= 99 % delivered outside the
 //! cut, every frame in order and at most once, the far bridge's own report counts a loss
-//! whenever frames are missing (a gap is flagged, never silent), C refused and silent.
-//! Skipped with a message where network namespaces cannot be created (not root, no `ip`).
-
-mod common;
+//! whenever frames are missing, the far logger's file marks every hole with `GAP_BEFORE`
+//! (never a silent hole), C refused and silent. Skipped with a message where network
+//! namespaces or TUN devices cannot be created (not root, no `ip`, no /dev/net/tun).
 
 use std::process::Command;
 use std::time::Duration;
 
-use common::*;
-use taxel_msgs::{RawFrame, Stream};
+use taxel_formats::{Record, RecordFileReader};
+use taxel_msgs::{raw_flags, RawFrame, Stream};
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::now_ns;
+use taxel_testkit::netem::{End, Impairment, Link};
+use taxel_testkit::relay::*;
+use taxel_testkit::Proc;
+
+const TAXEL: &str = env!("CARGO_BIN_EXE_taxel");
+
+fn bridge() -> BridgeExe {
+    BridgeExe::launcher(TAXEL)
+}
+
+fn spawn(name: &str, netns: Option<&str>, args: &[String]) -> Proc {
+    bridge().spawn(name, netns, args)
+}
 
 /// Frames at 1 kHz: 4 s before the cut, 3 s cut, 6 s after.
 const FRAMES: u64 = 13_000;
@@ -61,8 +75,8 @@ impl Drop for Net {
     }
 }
 
-/// Creates namespaces a, b, c; veth a<->b (10.X.1.1 / 10.X.1.2) and c<->b (10.X.2.3 /
-/// 10.X.2.2). Returns None (after printing why) where namespaces cannot be made.
+/// Creates namespaces a, b, c and the veth pair c<->b (10.X.2.3 / 10.X.2.2). Returns None
+/// (after printing why) where namespaces cannot be made.
 fn setup(tag: &str, x: u32) -> Option<(Net, [String; 3])> {
     let names = [format!("{tag}a"), format!("{tag}b"), format!("{tag}c")];
     let mut net = Net { ns: Vec::new() };
@@ -74,46 +88,40 @@ fn setup(tag: &str, x: u32) -> Option<(Net, [String; 3])> {
         net.ns.push(n.clone());
     }
     let [a, b, c] = &names;
-    let (va, vb, vc, vb2) = (
-        format!("{tag}va"),
-        format!("{tag}vb"),
-        format!("{tag}vc"),
-        format!("{tag}vd"),
-    );
-    let steps: Vec<Vec<String>> = vec![
-        vec!["link", "add", &va, "type", "veth", "peer", "name", &vb],
-        vec!["link", "set", &va, "netns", a],
-        vec!["link", "set", &vb, "netns", b],
-        vec!["link", "add", &vc, "type", "veth", "peer", "name", &vb2],
-        vec!["link", "set", &vc, "netns", c],
-        vec!["link", "set", &vb2, "netns", b],
-    ]
-    .into_iter()
-    .map(|v| v.into_iter().map(String::from).collect())
-    .collect();
-    let addr = |ns: &str, dev: &str, a: String| -> Vec<Vec<String>> {
-        vec![
-            vec!["-n", ns, "addr", "add", &a, "dev", dev],
-            vec!["-n", ns, "link", "set", dev, "up"],
-            vec!["-n", ns, "link", "set", "lo", "up"],
-        ]
-        .into_iter()
-        .map(|v| v.into_iter().map(String::from).collect())
-        .collect()
-    };
-    let mut all = steps;
-    all.extend(addr(a, &va, format!("10.{x}.1.1/24")));
-    all.extend(addr(b, &vb, format!("10.{x}.1.2/24")));
-    all.extend(addr(c, &vc, format!("10.{x}.2.3/24")));
-    all.extend(addr(b, &vb2, format!("10.{x}.2.2/24")));
-    for s in &all {
-        let s: Vec<&str> = s.iter().map(String::as_str).collect();
-        if let Err(e) = ip(&s) {
+    let (vc, vb2) = (format!("{tag}vc"), format!("{tag}vd"));
+    let (addr_c, addr_b) = (format!("10.{x}.2.3/24"), format!("10.{x}.2.2/24"));
+    let steps: [&[&str]; 10] = [
+        &["link", "add", &vc, "type", "veth", "peer", "name", &vb2],
+        &["link", "set", &vc, "netns", c],
+        &["link", "set", &vb2, "netns", b],
+        &["-n", c, "addr", "add", &addr_c, "dev", &vc],
+        &["-n", b, "addr", "add", &addr_b, "dev", &vb2],
+        &["-n", c, "link", "set", &vc, "up"],
+        &["-n", b, "link", "set", &vb2, "up"],
+        &["-n", a, "link", "set", "lo", "up"],
+        &["-n", b, "link", "set", "lo", "up"],
+        &["-n", c, "link", "set", "lo", "up"],
+    ];
+    for s in steps {
+        if let Err(e) = ip(s) {
             println!("SKIPPED: cannot set up the veth links here ({e})");
             return None;
         }
     }
     Some((net, names))
+}
+
+/// The far logger's record file: (seq, GAP_BEFORE) of each raw frame of the measured run.
+fn logged_raw(path: &std::path::Path, first: u64, n: u64) -> Vec<(u64, bool)> {
+    RecordFileReader::open(path)
+        .expect("the far logger's file")
+        .filter_map(|r| match r {
+            Record::Raw(f) if f.seq >= first && f.seq < first + n => {
+                Some((f.seq, f.flags & raw_flags::GAP_BEFORE != 0))
+            }
+            _ => None,
+        })
+        .collect()
 }
 
 #[test]
@@ -124,12 +132,36 @@ fn two_hosts_over_an_impaired_link_with_a_cut() {
     let Some((_net, [ns_a, ns_b, ns_c])) = setup(&tag, x) else {
         return;
     };
-    let (va, vb) = (format!("{tag}va"), format!("{tag}vb"));
-    let (ip_b, ip_b2) = (format!("10.{x}.1.2"), format!("10.{x}.2.2"));
+    let (ip_a, ip_b, ip_b2) = (
+        format!("10.{x}.1.1"),
+        format!("10.{x}.1.2"),
+        format!("10.{x}.2.2"),
+    );
+    let (ta, tb) = (format!("{tag}ta"), format!("{tag}tb"));
+    let link = match Link::start(
+        End {
+            netns: &ns_a,
+            device: &ta,
+            address: &ip_a,
+        },
+        End {
+            netns: &ns_b,
+            device: &tb,
+            address: &ip_b,
+        },
+        Impairment::default(),
+        u64::from(pid),
+    ) {
+        Ok(l) => l,
+        Err(e) => {
+            println!("SKIPPED: cannot create the emulated link (TUN devices) here ({e})");
+            return;
+        }
+    };
     let (pa, pb, pc) = (format!("{tag}a_"), format!("{tag}b_"), format!("{tag}c_"));
     let _cleanup = Cleanup(vec![pa.clone(), pb.clone(), pc.clone()]);
     let dir = tempfile::tempdir().expect("dir");
-    let certs = make_certs(&dir.path().join("certs"), &[&ip_b, &ip_b2]);
+    let certs = bridge().make_certs(&dir.path().join("certs"), &[&ip_b, &ip_b2]);
     let ca = certs.join("ca.pem");
 
     let allow = "taxel/glove0/*";
@@ -193,58 +225,47 @@ fn two_hosts_over_an_impaired_link_with_a_cut() {
         .publisher::<RawFrame>("glove0", Stream::Raw)
         .expect("publisher A");
     let rx = Receiver::start(&pb, 1, Duration::from_secs(25));
+    // The far side's logger, on the mirror the receiver waited for.
+    let logged = dir.path().join("far.taxrec");
+    let mut logger = Proc::start("far logger", {
+        let mut cmd = Command::new(TAXEL);
+        cmd.args([
+            "logger", "--prefix", &pb, "record", "--sensor", "glove0", "--out",
+        ])
+        .arg(&logged)
+        .env_remove("TAXEL_PREFIX");
+        cmd
+    });
+    logger.wait_for("logger ready", Duration::from_secs(20));
     let first = warm_up(&publisher, &rx, Duration::from_secs(20), &mut || {
         a.pump();
         b.pump();
         format!("A:\n{}\nB:\n{}", a.seen.join("\n"), b.seen.join("\n"))
     });
 
-    // Impair the link where the kernel has netem (both directions).
-    let netem = [(&ns_a, &va), (&ns_b, &vb)].iter().all(|(ns, dev)| {
-        Command::new("ip")
-            .args(["netns", "exec", ns, "tc", "qdisc", "add", "dev", dev])
-            .args(["root", "netem", "delay", "5ms", "loss", "1%"])
-            .output()
-            .is_ok_and(|o| o.status.success())
+    let impairment = "5 ms delay and 1 % loss each way (user-space link over TUN devices)";
+    link.set_impairment(Impairment {
+        delay: Duration::from_millis(5),
+        loss: 0.01,
     });
-    let impairment = if netem {
-        "tc netem delay 5ms loss 1% on both ends"
-    } else {
-        "NOT impaired: tc netem is not available in this kernel (no sch_netem); only the cut"
-    };
     println!("link: {impairment}");
 
-    let link = |state: &'static str| {
-        let mut children = Vec::new();
-        for (ns, dev) in [(&ns_a, &va), (&ns_b, &vb)] {
-            children.push(
-                Command::new("ip")
-                    .args(["-n", ns, "link", "set", dev, state])
-                    .spawn()
-                    .expect("ip link set"),
-            );
-        }
-        children
-    };
     let (mut cut_ns, mut restore_ns) = (0u64, 0u64);
-    let mut ip_children = Vec::new();
     let sent_at = send_frames(&publisher, first, FRAMES, Duration::from_millis(1), |i| {
         if i == CUT_AT {
             cut_ns = now_ns();
-            ip_children.extend(link("down"));
+            link.set_cut(true);
         }
         if i == CUT_AT + CUT_MS {
             restore_ns = now_ns();
-            ip_children.extend(link("up"));
+            link.set_cut(false);
         }
         if i % 10 == 0 {
             let _ = pub_c.send(&frame(STRANGER_SEQ + i));
         }
     });
-    for mut ch in ip_children {
-        let _ = ch.wait();
-    }
     std::thread::sleep(Duration::from_secs(2));
+    let carried = link.stats();
     let arr = rx.finish();
 
     // Outside the cut: sent before it, or RECONNECT_ALLOWANCE_MS after the link returned.
@@ -295,7 +316,8 @@ fn two_hosts_over_an_impaired_link_with_a_cut() {
     drop(ipc_a);
     drop(pub_c);
     drop(ipc_c);
-    let (sc, sa, sb) = (c.stop(), a.stop(), b.stop());
+    let (sl, sc, sa, sb) = (logger.stop(), c.stop(), a.stop(), b.stop());
+    let file = logged_raw(&logged, first, FRAMES);
 
     println!(
         "two namespaces, TLS, 1 kHz for {} s ({impairment}), cut {} s at +{} s:",
@@ -333,6 +355,22 @@ fn two_hosts_over_an_impaired_link_with_a_cut() {
     println!("  bridge A logged {sessions} change(s) of its peer count (1: the Zenoh session survived the cut)");
     let b_in = b.last_line("in taxel/glove0/raw");
     println!("  bridge B: {}", b_in.trim());
+    println!(
+        "  link: {} packets carried, {} dropped at random, {} dropped in the cut",
+        carried.carried, carried.dropped_at_random, carried.dropped_in_cut
+    );
+    let holes: Vec<u64> = file
+        .windows(2)
+        .filter(|w| w[1].0 != w[0].0 + 1)
+        .map(|w| w[1].0)
+        .collect();
+    let marked: Vec<u64> = file.iter().skip(1).filter(|x| x.1).map(|x| x.0).collect();
+    println!(
+        "  far logger: {} frames of the run recorded, {} hole(s), {} marked GAP_BEFORE",
+        file.len(),
+        holes.len(),
+        marked.len()
+    );
     for l in a
         .seen
         .iter()
@@ -343,6 +381,7 @@ fn two_hosts_over_an_impaired_link_with_a_cut() {
         println!("  log: {}", l.trim());
     }
 
+    assert!(sl.success(), "far logger: {sl}\n{}", logger.seen.join("\n"));
     assert!(sa.success(), "bridge A: {sa}\n{}", a.seen.join("\n"));
     assert!(sb.success(), "bridge B: {sb}\n{}", b.seen.join("\n"));
     assert!(sc.success(), "bridge C: {sc}\n{}", c.seen.join("\n"));
@@ -369,6 +408,24 @@ fn two_hosts_over_an_impaired_link_with_a_cut() {
             "frames missing but bridge B reports no loss: {b_in}"
         );
     }
+    // The far logger's file: in order, and no silent hole.
+    assert!(
+        file.windows(2).all(|w| w[1].0 > w[0].0),
+        "the far logger's frames are out of order"
+    );
+    assert_eq!(
+        holes, marked,
+        "holes in the far logger's file without GAP_BEFORE"
+    );
+    assert!(
+        file.len() as u64 >= got_outside / 2,
+        "the far logger recorded only {} frames",
+        file.len()
+    );
+    assert!(
+        carried.dropped_at_random > 0 && carried.dropped_in_cut > 0,
+        "the link was not impaired: {carried:?}"
+    );
     assert_eq!(
         strangers, 0,
         "frames of the bridge without a certificate arrived"
