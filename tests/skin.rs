@@ -75,7 +75,9 @@ fn seen(path: &Path) -> Seen {
 
 /// Starts one layout of sensors a and b (simulated, seeds 11 and 12, 200 Hz for 2.5 s): a
 /// logger, then calibrators (`with_calibrator`) or estimators, then the sources. Returns the
-/// roles to stop after the sources end, and the sources.
+/// roles to stop after the sources end, and the sources. The shared consumers wait on the
+/// wake-up group `w`; the shared publisher notifies it with calibrators, and without, with
+/// estimators (their fallback poll must then find every frame all the same).
 fn start_layout(p: &mut Pipeline, shared: bool, with_calibrator: bool) -> (Vec<Role>, Vec<Role>) {
     let rec = p.arg("run.taxrec");
     let cal = p.write("cal.toml", cal_with_zero());
@@ -89,11 +91,12 @@ fn start_layout(p: &mut Pipeline, shared: bool, with_calibrator: bool) -> (Vec<R
         "0.15",
     ];
     let groups: &[&str] = if shared { &["a,b"] } else { &["a", "b"] };
+    let wake: &[&str] = if shared { &["--wake-group", "w"] } else { &[] };
     for g in groups {
         consumers.push(if with_calibrator {
-            p.calibrator(g, &cal, &[])
+            p.calibrator(g, &cal, wake)
         } else {
-            p.estimator(g, &est)
+            p.estimator(g, &[&est[..], wake].concat())
         });
     }
     let sim = |seed: &str| {
@@ -110,7 +113,10 @@ fn start_layout(p: &mut Pipeline, shared: bool, with_calibrator: bool) -> (Vec<R
     let mut sources = Vec::new();
     if shared {
         // One value for the list: sensor i has seed 11 + i.
-        let a = sim("11");
+        let mut a = sim("11");
+        if with_calibrator {
+            a.splice(0..0, ["--wake-group".to_string(), "w".into()]);
+        }
         let a: Vec<&str> = a.iter().map(String::as_str).collect();
         sources.push(p.publisher_ready("a,b", &a));
     } else {
@@ -306,6 +312,14 @@ fn bad_sensor_lists_are_refused_with_one_line_errors() {
         ],
         "\"a\" is listed twice (entries 1 and 3)",
     );
+    let group = ["--sensor", "a,b", "--wake-group", "no/slash"];
+    for args in [
+        [&["publisher"][..], &group, &["sim"]].concat(),
+        [&["estimator", "run"][..], &group].concat(),
+        [&["calibrator", "run"][..], &group, &["--calibration", &cal]].concat(),
+    ] {
+        config_error(&args, "--wake-group: wake-up group \"no/slash\"");
+    }
     config_error(
         &["estimator", "run", "--sensor", "a,b c"],
         "--sensor: entry 2: invalid sensor id \"b c\"",

@@ -80,6 +80,7 @@ fn receiver(
         let mut n = 0;
         let _ = sub
             .listener()
+            .expect("a subscriber with a listener")
             .timed_wait(|_| n += 1, Duration::from_millis(50));
         r.wakeups += n;
         let first = start.load(Ordering::SeqCst);

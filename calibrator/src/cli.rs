@@ -9,7 +9,7 @@ use taxel_formats::readout::ReadoutChoice;
 use taxel_formats::Recording;
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
-use taxel_runtime::sensors::{process_name, sensor_list, PerSensor};
+use taxel_runtime::sensors::{process_name, sensor_list, PerSensor, WakeGroupArg};
 use taxel_runtime::wake::WakeMode;
 use taxel_runtime::Shutdown;
 use tracing::info;
@@ -58,6 +58,8 @@ pub struct RunArgs {
     /// event-driven).
     #[arg(long, value_enum, default_value_t = WakeMode::Event)]
     pub wake: WakeMode,
+    #[command(flatten)]
+    pub group: WakeGroupArg,
 }
 
 #[derive(Debug, clap::Args)]
@@ -154,6 +156,7 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
             "--wake {mode}: several sensors wait event-driven only (drop --wake or serve one sensor)"
         )));
     }
+    let group = a.group.checked().map_err(bad)?;
     // Each distinct file is loaded once; a bad one names the sensor(s) it was given for.
     let mut files: Vec<PathBuf> = Vec::new();
     let mut initial = Vec::new();
@@ -190,6 +193,7 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
         files,
         curvature_stale_s: a.curvature_stale_s,
         wake: a.wake,
+        group: group.map(str::to_string),
     };
     let shutdown = Shutdown::install().runtime_err()?;
     let ipc = Ipc::open(&common.prefix, &process_name("calibrator", &names)).runtime_err()?;

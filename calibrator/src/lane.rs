@@ -25,12 +25,20 @@ pub struct Streams {
 }
 
 impl Streams {
-    /// Opens `sensor`'s streams as the next index.
-    pub fn open(&mut self, ipc: &Ipc, sensor: &str) -> Result<(), IpcError> {
-        self.raw
-            .push(ipc.subscriber::<RawFrame>(sensor, Stream::Raw)?);
-        self.curv
-            .push(ipc.subscriber::<CurvatureEstimate>(sensor, Stream::Curvature)?);
+    /// Opens `sensor`'s streams as the next index; `polled`: its subscribers have no wake-up
+    /// listeners (the process waits on a wake-up group).
+    pub fn open(&mut self, ipc: &Ipc, sensor: &str, polled: bool) -> Result<(), IpcError> {
+        if polled {
+            self.raw
+                .push(ipc.subscriber_polled::<RawFrame>(sensor, Stream::Raw)?);
+            self.curv
+                .push(ipc.subscriber_polled::<CurvatureEstimate>(sensor, Stream::Curvature)?);
+        } else {
+            self.raw
+                .push(ipc.subscriber::<RawFrame>(sensor, Stream::Raw)?);
+            self.curv
+                .push(ipc.subscriber::<CurvatureEstimate>(sensor, Stream::Curvature)?);
+        }
         self.force
             .push(ipc.publisher::<ForceSample>(sensor, Stream::Force)?);
         Ok(())

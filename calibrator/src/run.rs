@@ -9,10 +9,11 @@ use std::sync::Arc;
 
 use taxel_formats::{Readout, ReadoutKind};
 use taxel_msgs::{
-    force_flags, raw_flags, CurvatureEstimate, ForceSample, RawFrame, MAX_BLOCKS, MAX_NODES,
+    force_flags, raw_flags, CurvatureEstimate, ForceSample, RawFrame, Stream, MAX_BLOCKS, MAX_NODES,
 };
 use taxel_runtime::ipc::Ipc;
-use taxel_runtime::wake::{receive_loop, receive_many, LoopOptions, WakeMode};
+use taxel_runtime::ipc::{GroupListener, GroupNotifier};
+use taxel_runtime::wake::{receive_group, receive_loop, receive_many, LoopOptions, WakeMode};
 use taxel_runtime::Shutdown;
 use tracing::info;
 
@@ -39,6 +40,8 @@ pub struct Config {
     pub curvature_stale_s: f64,
     /// How to wait for raw frames.
     pub wake: WakeMode,
+    /// Several sensors: wait on this wake-up group and poll their streams (`--wake-group`).
+    pub group: Option<String>,
 }
 
 /// What a run did.
@@ -391,6 +394,14 @@ pub fn run(
         .collect();
     let mut lanes = Vec::with_capacity(cfg.sensors.len());
     let mut streams = Streams::default();
+    let group = match &cfg.group {
+        Some(g) if cfg.sensors.len() > 1 => Some((
+            ipc.group_listener(g, Stream::Raw)?,
+            ipc.group_notifier(g, Stream::Force)?,
+        )),
+        _ => None,
+    };
+    let polled = group.is_some();
     for s in &cfg.sensors {
         let f = s.file;
         anyhow::ensure!(
@@ -403,7 +414,7 @@ pub fn run(
         }
         let cal = Calibrator::new(loaded[f].clone(), cfg.curvature_stale_s);
         let shown = cfg.files[f].display().to_string();
-        streams.open(ipc, &s.sensor)?;
+        streams.open(ipc, &s.sensor, polled)?;
         lanes.push(Lane::new(&s.sensor, f, shown, cal));
     }
     // Ready once every sensor's streams are open.
@@ -428,7 +439,7 @@ pub fn run(
             cfg.wake == WakeMode::Event,
             "several sensors wait event-driven only"
         );
-        many(&mut lanes, &streams, &watcher, shutdown)?;
+        many(&mut lanes, &streams, &watcher, group.as_ref(), shutdown)?;
         info!(sensors = lanes.len(), "calibrator stopped serving");
         Default::default()
     };
@@ -473,38 +484,54 @@ fn one(
     Ok(stats)
 }
 
-/// Several sensors in one WaitSet (every raw listener attached). A reloaded file goes to every
-/// sensor it serves, between two frames.
+/// Several sensors in one WaitSet: every raw listener attached, or the wake-up group's alone
+/// (the raw streams polled when it fires, and the group's force stream notified as forces go
+/// out). A reloaded file goes to every sensor it serves, between two frames.
 fn many(
     lanes: &mut [Lane],
     st: &Streams,
     watcher: &Watcher,
+    group: Option<&(GroupListener, GroupNotifier)>,
     shutdown: &Shutdown,
 ) -> anyhow::Result<()> {
-    receive_many(
-        &st.raw,
-        None,
-        taxel_runtime::ipc::TICK,
-        shutdown,
-        lanes,
-        |lanes: &mut [Lane], i, frame: &RawFrame, _| -> anyhow::Result<()> {
-            watcher.try_each(|f, l| {
-                for lane in lanes.iter_mut().filter(|x| x.file == f) {
-                    lane.reloaded(l.clone());
-                }
-            });
-            let lane = &mut lanes[i];
-            lane.poll_curvature(&st.curv[i])?;
-            lane.on_frame(frame, &st.force[i], false)?;
-            Ok(())
-        },
-        |_| {
-            for c in &st.curv {
-                let _ = c.clear_wakeups();
+    let forces = group.map(|(_, n)| n);
+    let on_frame = |lanes: &mut [Lane], i: usize, frame: &RawFrame, _: u64| -> anyhow::Result<()> {
+        watcher.try_each(|f, l| {
+            for lane in lanes.iter_mut().filter(|x| x.file == f) {
+                lane.reloaded(l.clone());
             }
+        });
+        let lane = &mut lanes[i];
+        lane.poll_curvature(&st.curv[i])?;
+        lane.on_frame(frame, &st.force[i], false)?;
+        if let Some(n) = forces {
+            n.sent()?;
+        }
+        Ok(())
+    };
+    let on_tick = |_: &mut [Lane]| -> anyhow::Result<()> {
+        for c in &st.curv {
+            let _ = c.clear_wakeups();
+        }
+        Ok(())
+    };
+    let tick = taxel_runtime::ipc::TICK;
+    match group {
+        Some((g, n)) => {
+            let flush = |_: &mut [Lane]| -> anyhow::Result<()> { Ok(n.flush()?) };
+            let s = receive_group(
+                &st.raw, g, None, tick, shutdown, lanes, on_frame, flush, on_tick,
+            )?;
+            info!(
+                group = g.name(),
+                wakeups = s.group_wakeups,
+                unannounced = s.unannounced,
+                "calibrator's wake-up group"
+            );
             Ok(())
-        },
-    )
+        }
+        None => receive_many(&st.raw, None, tick, shutdown, lanes, on_frame, on_tick),
+    }
 }
 
 #[cfg(test)]

@@ -7,10 +7,13 @@ use std::time::Instant;
 use clap::Parser;
 use iceoryx2::prelude::*;
 use taxel_msgs::{ForceSample, RawFrame, Stream};
-use taxel_runtime::ipc::{Ipc, StreamSubscriber};
+use taxel_runtime::ipc::{GroupListener, Ipc, IpcError, StreamSubscriber};
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
+use taxel_runtime::sensors::WakeGroupArg;
 use taxel_runtime::stats::SeqTracker;
-use taxel_runtime::wake::{receive_loop, AdaptiveStats, LoopOptions, WakeMode};
+use taxel_runtime::wake::{
+    receive_group, receive_loop, receive_many, AdaptiveStats, LoopOptions, WakeMode,
+};
 use taxel_runtime::{now_ns, Shutdown};
 
 use crate::age::{json_report, AgeHistogram};
@@ -41,6 +44,8 @@ pub struct Args {
     /// How to wait for samples.
     #[arg(long, value_enum, default_value_t = WakeMode::Event)]
     pub wake: WakeMode,
+    #[command(flatten)]
+    pub group: WakeGroupArg,
 }
 
 pub fn main(args: Args) -> ExitCode {
@@ -150,64 +155,57 @@ struct Measured {
     wake: AdaptiveStats,
 }
 
-/// Several sensors' streams in one WaitSet; drops are counted per sensor.
+/// What the many-stream probe gathers.
+struct ManyState {
+    seqs: Vec<SeqTracker>,
+    h: AgeHistogram,
+    window: Window,
+}
+
+/// Several sensors' streams in one WaitSet (each stream's listener, or a wake-up group's);
+/// drops are counted per sensor.
 fn measure_many<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     subs: &[StreamSubscriber<T>],
+    group: Option<&GroupListener>,
     stamp: impl Fn(&T) -> Stamp,
     (seconds, skip_s): (Option<f64>, f64),
     shutdown: &Shutdown,
 ) -> anyhow::Result<Measured> {
-    let ws = taxel_runtime::ipc::waitset()?;
-    let mut guards = Vec::new();
-    for sub in subs {
-        guards.push(
-            ws.attach_notification(sub.listener())
-                .map_err(|e| anyhow::anyhow!("attach {}: {e:?}", sub.name()))?,
-        );
-    }
     tracing::info!("latency probe ready on {} streams", subs.len());
-    let mut seqs = vec![SeqTracker::default(); subs.len()];
-    let mut h = AgeHistogram::new();
-    let mut window = Window::new(skip_s);
-    let start = window.skip_until;
-    let mut failure = None;
-    while !shutdown.requested() && failure.is_none() {
-        if seconds.is_some_and(|s| Instant::now() >= start + std::time::Duration::from_secs_f64(s))
-        {
-            break;
+    let mut st = ManyState {
+        seqs: vec![SeqTracker::default(); subs.len()],
+        h: AgeHistogram::new(),
+        window: Window::new(skip_s),
+    };
+    let start = st.window.skip_until;
+    let until = seconds.map(|s| start + std::time::Duration::from_secs_f64(s));
+    let on_sample = |st: &mut ManyState, i: usize, v: &T, _: u64| -> Result<(), IpcError> {
+        let s = stamp(v);
+        let ManyState { seqs, h, window } = st;
+        if window.counts(|| seqs.iter_mut().for_each(restart_counts)) {
+            h.record_ns(now_ns().saturating_sub(s.capture_ns));
         }
-        ws.wait_and_process_once_with_timeout(
-            |id| {
-                for (i, g) in guards.iter().enumerate() {
-                    if id.has_event_from(g) {
-                        if let Err(e) = subs[i].drain(|v| {
-                            let s = stamp(v);
-                            if window.counts(|| seqs.iter_mut().for_each(restart_counts)) {
-                                h.record_ns(now_ns().saturating_sub(s.capture_ns));
-                            }
-                            seqs[i].observe(s.seq);
-                        }) {
-                            failure = Some(e);
-                        }
-                    }
-                }
-                CallbackProgression::Continue
-            },
-            taxel_runtime::ipc::TICK,
-        )
-        .map_err(|e| anyhow::anyhow!("waitset: {e:?}"))?;
-    }
-    if let Some(e) = failure {
-        return Err(e.into());
+        seqs[i].observe(s.seq);
+        Ok(())
+    };
+    let nothing = |_: &mut ManyState| Ok(());
+    let tick = taxel_runtime::ipc::TICK;
+    match group {
+        Some(g) => {
+            receive_group(
+                subs, g, until, tick, shutdown, &mut st, on_sample, nothing, nothing,
+            )?;
+        }
+        None => receive_many(subs, until, tick, shutdown, &mut st, on_sample, nothing)?,
     }
     let mut total = SeqTracker::default();
-    for s in &seqs {
+    for s in &st.seqs {
         total.received += s.received;
         total.dropped += s.dropped;
     }
     Ok(Measured {
         seq: total,
-        h,
+        h: st.h,
         last_hop: AgeHistogram::new(),
         secs: start.elapsed().as_secs_f64(),
         wake: AdaptiveStats::default(),
@@ -223,14 +221,26 @@ fn measure_streams<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     stamp: fn(&T) -> Stamp,
     shutdown: &Shutdown,
 ) -> Result<Measured, Failure> {
+    let group = match a
+        .group
+        .checked()
+        .map_err(|e| Failure::config(anyhow::anyhow!(e)))?
+    {
+        Some(g) if a.sensor.len() > 1 => Some(ipc.group_listener(g, stream).runtime_err()?),
+        _ => None,
+    };
     let mut subs = Vec::new();
     for s in &a.sensor {
-        subs.push(ipc.subscriber::<T>(s, stream).runtime_err()?);
+        subs.push(if group.is_some() {
+            ipc.subscriber_polled::<T>(s, stream).runtime_err()?
+        } else {
+            ipc.subscriber::<T>(s, stream).runtime_err()?
+        });
     }
     let window = (a.seconds, a.skip_s);
     match subs.as_slice() {
         [one] => measure(one, stamp, a.wake, window, shutdown),
-        many => measure_many(many, stamp, window, shutdown),
+        many => measure_many(many, group.as_ref(), stamp, window, shutdown),
     }
     .runtime_err()
 }
@@ -252,6 +262,9 @@ fn run(a: Args) -> Result<(), Failure> {
             a.skip_s
         )));
     }
+    a.group
+        .checked()
+        .map_err(|e| Failure::config(anyhow::anyhow!(e)))?;
     let shutdown = Shutdown::install().runtime_err()?;
     let name = if a.sensor.len() == 1 {
         a.sensor[0].clone()

@@ -233,6 +233,7 @@ fn record(common: &CommonArgs, a: RecordArgs) -> Result<(), Failure> {
             s.force.listener(),
             s.reference.listener(),
         ] {
+            let l = l.runtime_err()?;
             guards.push(
                 ws.attach_notification(l)
                     .map_err(|e| anyhow::anyhow!("attach listener: {e:?}"))

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use clap::{Parser, Subcommand};
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
-use taxel_runtime::sensors::{process_name, resolve_opt, sensor_list, PerSensor};
+use taxel_runtime::sensors::{process_name, resolve_opt, sensor_list, PerSensor, WakeGroupArg};
 use taxel_runtime::Shutdown;
 use tracing::info;
 
@@ -118,6 +118,8 @@ pub struct RunArgs {
     /// sensor (`40,55,`; an empty entry is 0).
     #[arg(long)]
     pub curvature_m1: Option<PerSensor<f64>>,
+    #[command(flatten)]
+    pub group: WakeGroupArg,
     /// Frames per no-load window.
     #[arg(long, default_value_t = DetectorConfig::default().window_frames)]
     pub window_frames: usize,
@@ -170,6 +172,7 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
     let bad = |e: String| Failure::config(anyhow::anyhow!(e));
     let names = sensor_list("--sensor", &a.sensor).map_err(bad)?;
     let n = names.len();
+    let group = a.group.checked().map_err(bad)?;
     let curvatures = resolve_opt(&a.curvature_m1, "--curvature-m1", n).map_err(bad)?;
     let model_paths = resolve_opt(&a.model, "--model", n).map_err(bad)?;
     let detector = DetectorConfig {
@@ -224,7 +227,11 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
             model_path: model_paths[i].clone(),
         });
     }
-    let cfg = crate::run::Config { sensors, detector };
+    let cfg = crate::run::Config {
+        sensors,
+        detector,
+        group: group.map(str::to_string),
+    };
     let shutdown = Shutdown::install().runtime_err()?;
     let ipc = Ipc::open(&common.prefix, &process_name("estimator", &names)).runtime_err()?;
     let s = crate::run::run(&ipc, &cfg, &shutdown).runtime_err()?;

@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use taxel_msgs::{CurvatureEstimate, RawFrame, Stream};
 use taxel_runtime::ipc::{self, Ipc, StreamPublisher, StreamSubscriber};
-use taxel_runtime::wake::receive_many;
+use taxel_runtime::wake::{receive_group, receive_many};
 use taxel_runtime::Shutdown;
 use tracing::{error, info};
 
@@ -41,6 +41,9 @@ pub struct SensorConfig {
 pub struct Config {
     pub sensors: Vec<SensorConfig>,
     pub detector: DetectorConfig,
+    /// Several sensors: wait on this wake-up group and poll their raw streams
+    /// (`--wake-group`).
+    pub group: Option<String>,
 }
 
 /// What a run did, summed over its sensors.
@@ -85,8 +88,16 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
     anyhow::ensure!(!cfg.sensors.is_empty(), "no sensor to serve");
     let mut raw: Vec<StreamSubscriber<RawFrame>> = Vec::with_capacity(cfg.sensors.len());
     let mut out: Vec<StreamPublisher<CurvatureEstimate>> = Vec::with_capacity(cfg.sensors.len());
+    let group = match &cfg.group {
+        Some(g) if cfg.sensors.len() > 1 => Some(ipc.group_listener(g, Stream::Raw)?),
+        _ => None,
+    };
     for s in &cfg.sensors {
-        raw.push(ipc.subscriber::<RawFrame>(&s.sensor, Stream::Raw)?);
+        raw.push(if group.is_some() {
+            ipc.subscriber_polled::<RawFrame>(&s.sensor, Stream::Raw)?
+        } else {
+            ipc.subscriber::<RawFrame>(&s.sensor, Stream::Raw)?
+        });
         out.push(ipc.publisher::<CurvatureEstimate>(&s.sensor, Stream::Curvature)?);
     }
     let mut st = State {
@@ -112,15 +123,33 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
             "estimator ready for every sensor"
         );
     }
-    receive_many(
-        &raw,
-        None,
-        ipc::TICK,
-        shutdown,
-        &mut st,
-        |st, i, frame, _| on_frame(&mut st.lanes[i], frame, &out[i], single),
-        |st| on_tick(st, &out),
-    )?;
+    let on_sample = |st: &mut State, i: usize, frame: &RawFrame, _: u64| {
+        on_frame(&mut st.lanes[i], frame, &out[i], single)
+    };
+    let tick = |st: &mut State| on_tick(st, &out);
+    match &group {
+        Some(g) => {
+            let polled = |_: &mut State| Ok(());
+            let s = receive_group(
+                &raw,
+                g,
+                None,
+                ipc::TICK,
+                shutdown,
+                &mut st,
+                on_sample,
+                polled,
+                tick,
+            )?;
+            info!(
+                group = g.name(),
+                wakeups = s.group_wakeups,
+                unannounced = s.unannounced,
+                "estimator's wake-up group"
+            );
+        }
+        None => receive_many(&raw, None, ipc::TICK, shutdown, &mut st, on_sample, tick)?,
+    }
     let mut summary = Summary::default();
     for l in &st.lanes {
         summary.frames += l.frames;

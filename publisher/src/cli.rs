@@ -7,7 +7,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use taxel_runtime::ipc::Ipc;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
-use taxel_runtime::sensors::{process_name, resolve_opt, sensor_list, PerSensor};
+use taxel_runtime::sensors::{process_name, resolve_opt, sensor_list, PerSensor, WakeGroupArg};
 use taxel_runtime::Shutdown;
 use taxel_sim::{Scenario, SensorModel};
 use tracing::info;
@@ -27,6 +27,8 @@ pub struct Args {
     /// services with its own source, schedule and sequence numbers.
     #[arg(long, default_value = "s0")]
     pub sensor: String,
+    #[command(flatten)]
+    pub group: WakeGroupArg,
     /// Stop after this many seconds (default: when the source ends, or on Ctrl-C).
     #[arg(long)]
     pub seconds: Option<f64>,
@@ -308,6 +310,9 @@ fn run(args: Args) -> Result<(), Failure> {
             )));
         }
     }
+    args.group
+        .checked()
+        .map_err(|e| Failure::config(anyhow::anyhow!(e)))?;
     let n = names.len();
     match &args.source {
         SourceArgs::Serial(_) if n > 1 => {
@@ -335,7 +340,19 @@ fn run(args: Args) -> Result<(), Failure> {
         .zip(sources.iter_mut())
         .map(|(name, src)| (name.as_str(), &mut **src as &mut dyn Source))
         .collect();
-    let s = crate::run::publish_many(&ipc, &mut lanes, args.seconds, &shutdown).runtime_err()?;
+    let group = match args
+        .group
+        .checked()
+        .map_err(|e| Failure::config(anyhow::anyhow!(e)))?
+    {
+        Some(g) => Some(
+            ipc.group_notifier(g, taxel_msgs::Stream::Raw)
+                .runtime_err()?,
+        ),
+        None => None,
+    };
+    let s = crate::run::publish_many(&ipc, &mut lanes, group.as_ref(), args.seconds, &shutdown)
+        .runtime_err()?;
     info!(
         sensor = %args.sensor,
         frames = s.frames,

@@ -8,7 +8,7 @@ use anyhow::Context;
 use taxel_formats::csv::{Columns, Row};
 use taxel_formats::RecordingWriter;
 use taxel_msgs::{raw_flags, sensor_id_bytes, RawFrame, Reference, Stream, MAX_NODES};
-use taxel_runtime::ipc::{Ipc, StreamPublisher};
+use taxel_runtime::ipc::{GroupNotifier, Ipc, StreamPublisher};
 use taxel_runtime::progress::Progress;
 use taxel_runtime::{now_ns, Shutdown};
 use tracing::{info, warn};
@@ -35,7 +35,7 @@ pub fn publish(
     max_seconds: Option<f64>,
     shutdown: &Shutdown,
 ) -> anyhow::Result<Summary> {
-    publish_many(ipc, &mut [(sensor, source)], max_seconds, shutdown)
+    publish_many(ipc, &mut [(sensor, source)], None, max_seconds, shutdown)
 }
 
 /// One sensor of the publish loop: its source, streams, the frame it sends next and when.
@@ -182,11 +182,12 @@ impl<'a> Lane<'a> {
 
 /// Publishes every `(sensor, source)` from one loop until every source has ended,
 /// `max_seconds` pass, or shutdown. Each sensor keeps its own schedule, sequence numbers and
-/// gap flags; frames due at the same time go out together, after one wake-up. One sensor is
-/// paced and sent exactly as a publisher of its own.
+/// gap flags; frames due at the same time go out together, after one wake-up, and `group` (if
+/// any) is notified every few frames and at the end. One sensor is paced and sent exactly as a publisher of its own.
 pub fn publish_many(
     ipc: &Ipc,
     sensors: &mut [(&str, &mut dyn Source)],
+    group: Option<&GroupNotifier>,
     max_seconds: Option<f64>,
     shutdown: &Shutdown,
 ) -> anyhow::Result<Summary> {
@@ -239,7 +240,13 @@ pub fn publish_many(
         for l in lanes.iter_mut() {
             if l.due.is_some_and(|d| d <= now) {
                 l.send(now, hand_over, &mut summary)?;
+                if let Some(g) = group {
+                    g.sent()?;
+                }
             }
+        }
+        if let Some(g) = group {
+            g.flush()?;
         }
         if now.duration_since(last_report) >= Duration::from_secs(1) {
             let dt = now.duration_since(last_report).as_secs_f64();

@@ -1,7 +1,10 @@
 //! iceoryx2 plumbing: one node per process, and per-sensor streams. A stream is a
 //! publish-subscribe service and an event service of the same name (`taxel/<sensor>/<stream>`);
 //! the publisher notifies the event after every send, so subscribers sleep in a WaitSet until
-//! data arrives. Every process opens a stream with the same quality-of-service settings (safe
+//! data arrives. A process serving many sensors can instead wait on a wake-up group
+//! (`taxel-group/<group>/<stream>`), notified once per burst by an upstream process that serves
+//! the same sensors, and poll its subscribers, which then have no listener of their own (the
+//! per-sample notifications reach only the processes that listen per sensor). Every process opens a stream with the same quality-of-service settings (safe
 //! overflow on, so a stalled subscriber never blocks a publisher; history per stream).
 
 use std::fmt::Debug;
@@ -135,6 +138,26 @@ impl Ipc {
         sensor: &str,
         stream: Stream,
     ) -> Result<StreamSubscriber<T>, IpcError> {
+        self.subscriber_with(sensor, stream, true)
+    }
+
+    /// Subscriber side of a stream without a wake-up listener of its own: the publisher's
+    /// per-sample notification does not reach this process (no listener, no system call);
+    /// something else says when to poll (a [`GroupListener`], a timer).
+    pub fn subscriber_polled<T: Debug + ZeroCopySend + Copy + 'static>(
+        &self,
+        sensor: &str,
+        stream: Stream,
+    ) -> Result<StreamSubscriber<T>, IpcError> {
+        self.subscriber_with(sensor, stream, false)
+    }
+
+    fn subscriber_with<T: Debug + ZeroCopySend + Copy + 'static>(
+        &self,
+        sensor: &str,
+        stream: Stream,
+        with_listener: bool,
+    ) -> Result<StreamSubscriber<T>, IpcError> {
         let (ps, ev) = self.services::<T>(sensor, stream)?;
         let name = service_name(sensor, stream);
         let subscriber = ps
@@ -142,15 +165,142 @@ impl Ipc {
             .buffer_size(stream.buffer())
             .create()
             .map_err(|e| err(format!("subscriber on {name}"), e))?;
-        let listener = ev
-            .listener_builder()
-            .create()
-            .map_err(|e| err(format!("listener on {name}"), e))?;
+        let listener = if with_listener {
+            Some(
+                ev.listener_builder()
+                    .create()
+                    .map_err(|e| err(format!("listener on {name}"), e))?,
+            )
+        } else {
+            None
+        };
         Ok(StreamSubscriber {
             subscriber,
             listener,
             name,
         })
+    }
+
+    /// The event service of a wake-up group's stream (`taxel-group/<group>/<stream>`).
+    fn group_event(&self, group: &str, stream: Stream) -> Result<(EventFactory, String), IpcError> {
+        let name = group_service_name(group, stream)?;
+        let sname: ServiceName = name
+            .as_str()
+            .try_into()
+            .map_err(|e| err(format!("service name {name}"), e))?;
+        let ev = self
+            .node
+            .service_builder(&sname)
+            .event()
+            .max_nodes(MAX_NODES)
+            .max_listeners(MAX_SUBSCRIBERS)
+            .max_notifiers(MAX_PUBLISHERS * 2)
+            .open_or_create()
+            .map_err(|e| err(format!("opening event {name}"), e))?;
+        Ok((ev, name))
+    }
+
+    /// The notifying end of a wake-up group: a process serving many sensors notifies it once
+    /// per burst of samples on `stream` (after every sensor's own notification).
+    pub fn group_notifier(&self, group: &str, stream: Stream) -> Result<GroupNotifier, IpcError> {
+        let (ev, name) = self.group_event(group, stream)?;
+        let notifier = ev
+            .notifier_builder()
+            .create()
+            .map_err(|e| err(format!("notifier on {name}"), e))?;
+        Ok(GroupNotifier {
+            notifier,
+            name,
+            pending: std::cell::Cell::new(0),
+        })
+    }
+
+    /// The waiting end of a wake-up group (see [`Ipc::group_notifier`]).
+    pub fn group_listener(&self, group: &str, stream: Stream) -> Result<GroupListener, IpcError> {
+        let (ev, name) = self.group_event(group, stream)?;
+        let listener = ev
+            .listener_builder()
+            .create()
+            .map_err(|e| err(format!("listener on {name}"), e))?;
+        Ok(GroupListener { listener, name })
+    }
+}
+
+/// The service name of a wake-up group's stream; the group name follows the sensor id rules
+/// (1-31 characters of ASCII letters, digits, `_` and `-`).
+pub fn group_service_name(group: &str, stream: Stream) -> Result<String, IpcError> {
+    taxel_msgs::sensor_id_bytes(group).map_err(|e| IpcError {
+        what: format!("wake-up group {group:?}"),
+        detail: e.to_string(),
+    })?;
+    Ok(format!("taxel-group/{group}/{}", stream.suffix()))
+}
+
+/// Samples a group notifier lets pass before it wakes the group within a burst: the process
+/// downstream starts on the first ones (on the other core) while the rest are still sent.
+pub const GROUP_BATCH: u32 = 8;
+
+/// Notifies a wake-up group (see [`Ipc::group_notifier`]): every [`GROUP_BATCH`] samples sent
+/// and at the end of each burst.
+pub struct GroupNotifier {
+    notifier: Notifier<ipc::Service>,
+    name: String,
+    pending: std::cell::Cell<u32>,
+}
+
+impl GroupNotifier {
+    /// Wakes every process waiting on the group (no system call when none waits).
+    pub fn notify(&self) -> Result<(), IpcError> {
+        self.pending.set(0);
+        self.notifier
+            .notify()
+            .map_err(|e| err(format!("notify on {}", self.name), e))?;
+        Ok(())
+    }
+
+    /// One more sample was sent (and its own stream notified): wakes the group every
+    /// [`GROUP_BATCH`] samples.
+    pub fn sent(&self) -> Result<(), IpcError> {
+        let n = self.pending.get() + 1;
+        self.pending.set(n);
+        if n >= GROUP_BATCH {
+            self.notify()?;
+        }
+        Ok(())
+    }
+
+    /// The burst is over: wakes the group if a sample went out since it last did.
+    pub fn flush(&self) -> Result<(), IpcError> {
+        if self.pending.get() > 0 {
+            self.notify()?;
+        }
+        Ok(())
+    }
+}
+
+/// Waits on a wake-up group (see [`Ipc::group_listener`]).
+pub struct GroupListener {
+    listener: Listener<ipc::Service>,
+    name: String,
+}
+
+impl GroupListener {
+    /// The listener to attach to a WaitSet.
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+
+    /// Discards pending wake-ups; returns how many there were.
+    pub fn clear(&self) -> Result<usize, IpcError> {
+        let mut n = 0;
+        match self.listener.try_wait(|_| n += 1) {
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(n),
+            Err(e) => Err(err(format!("listener on {}", self.name), e)),
+        }
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
     }
 }
 
@@ -277,14 +427,18 @@ impl<T: Debug + ZeroCopySend + Copy + 'static> StreamPublisher<T> {
 /// Receiving end of a stream.
 pub struct StreamSubscriber<T: Debug + ZeroCopySend + 'static> {
     subscriber: Subscriber<ipc::Service, T, ()>,
-    listener: Listener<ipc::Service>,
+    /// None: polled ([`Ipc::subscriber_polled`]).
+    listener: Option<Listener<ipc::Service>>,
     name: String,
 }
 
 impl<T: Debug + ZeroCopySend + Copy + 'static> StreamSubscriber<T> {
-    /// The listener to attach to a WaitSet.
-    pub fn listener(&self) -> &Listener<ipc::Service> {
-        &self.listener
+    /// The listener to attach to a WaitSet (an error for a polled subscriber).
+    pub fn listener(&self) -> Result<&Listener<ipc::Service>, IpcError> {
+        self.listener.as_ref().ok_or_else(|| IpcError {
+            what: format!("subscriber on {}", self.name),
+            detail: "polled: it has no wake-up listener".into(),
+        })
     }
 
     /// Clears pending wake-ups and hands every waiting sample to `f`, oldest first. Returns
@@ -332,16 +486,23 @@ impl<T: Debug + ZeroCopySend + Copy + 'static> StreamSubscriber<T> {
 
     /// Discards pending wake-ups (polling modes call this off the critical path).
     pub fn clear_wakeups(&self) -> Result<(), IpcError> {
-        match self.listener.try_wait(|_| {}) {
+        let Some(listener) = &self.listener else {
+            return Ok(());
+        };
+        match listener.try_wait(|_| {}) {
             Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(()),
             Err(e) => Err(err(format!("listener on {}", self.name), e)),
         }
     }
 
     /// Blocks until a wake-up arrives, a signal interrupts (the caller checks its shutdown
-    /// flag), or `timeout` passes.
+    /// flag), or `timeout` passes (a polled subscriber sleeps `timeout`).
     pub fn wait_wakeup(&self, timeout: Duration) -> Result<(), IpcError> {
-        match self.listener.timed_wait(|_| {}, timeout) {
+        let Some(listener) = &self.listener else {
+            std::thread::sleep(timeout);
+            return Ok(());
+        };
+        match listener.timed_wait(|_| {}, timeout) {
             Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(()),
             Err(e) => Err(err(format!("listener on {}", self.name), e)),
         }

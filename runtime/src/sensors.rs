@@ -37,6 +37,30 @@ pub fn sensor_list(flag: &str, text: &str) -> Result<Vec<String>, String> {
     Ok(out)
 }
 
+/// `--wake-group NAME` of a process in a shared layout (one process per role for many sensors).
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct WakeGroupArg {
+    /// Wake-up group of a shared layout (`taxel-group/NAME/<stream>`): a process serving many
+    /// sensors (publisher, calibrator) notifies it every few samples of a burst, and one
+    /// downstream serving the same sensors (estimator, calibrator, a latency probe of them all)
+    /// waits on it and polls their streams instead of listening to each sensor (`taxel up`
+    /// sets it for `layout = "shared"`). Every sensor's own notification is still sent.
+    #[arg(long, value_name = "NAME")]
+    pub wake_group: Option<String>,
+}
+
+impl WakeGroupArg {
+    /// The group, checked (a one-line error naming the flag otherwise).
+    pub fn checked(&self) -> Result<Option<&str>, String> {
+        match &self.wake_group {
+            None => Ok(None),
+            Some(g) => crate::ipc::group_service_name(g, taxel_msgs::Stream::Raw)
+                .map(|_| Some(g.as_str()))
+                .map_err(|e| format!("--wake-group: {e}")),
+        }
+    }
+}
+
 /// The name of a process serving `sensors` (its iceoryx2 node): `role-a` for one sensor, as
 /// before, `role-a+N` for `a` and N more (`+` cannot occur in a sensor id).
 pub fn process_name(role: &str, sensors: &[String]) -> String {

@@ -67,16 +67,37 @@ fn ids(sensors: &[&Sensor]) -> String {
         .join(",")
 }
 
+/// The wake-up group of a shared layout (one per prefix, as its pipeline).
+pub const WAKE_GROUP: &str = "shared";
+
+/// `--wake-group` for every process of a shared layout whose sources all notify it (sim and
+/// replay publishers; a serial board's publisher serves one sensor and does not), else nothing:
+/// the estimator and calibrator then listen to each sensor.
+fn wake_group(all: &[&Sensor]) -> Vec<String> {
+    if all.len() > 1
+        && all
+            .iter()
+            .all(|x| matches!(x.source, Source::Sim { .. } | Source::Replay { .. }))
+    {
+        vec![s("--wake-group"), s(WAKE_GROUP)]
+    } else {
+        Vec::new()
+    }
+}
+
 /// The calibrator, estimator and publishers of a shared pipeline (after the consumers).
 pub fn shared_processes(p: &Pipeline) -> anyhow::Result<Vec<ProcSpec>> {
     let all: Vec<&Sensor> = p.sensors.iter().collect();
+    let group = wake_group(&all);
     let mut cal = vec![s("calibrator"), s("run"), s("--sensor"), ids(&all)];
+    cal.extend(group.iter().cloned());
     let files = all
         .iter()
         .map(|x| entry(&x.calibration).map(Some))
         .collect::<anyhow::Result<Vec<_>>>()?;
     per_sensor(&mut cal, "--calibration", &files);
     let mut est = vec![s("estimator"), s("run"), s("--sensor"), ids(&all)];
+    est.extend(group.iter().cloned());
     let models = all
         .iter()
         .map(|x| x.model.as_deref().map(entry).transpose())
@@ -97,7 +118,7 @@ pub fn shared_processes(p: &Pipeline) -> anyhow::Result<Vec<ProcSpec>> {
         out.push(ProcSpec::new(
             "publisher-sim",
             STAGE_SOURCE,
-            sim_args(&sims)?,
+            with_group(sim_args(&sims)?, &group),
         ));
     }
     let groups = replay_groups(&all);
@@ -107,7 +128,11 @@ pub fn shared_processes(p: &Pipeline) -> anyhow::Result<Vec<ProcSpec>> {
         } else {
             format!("publisher-replay-{k}")
         };
-        out.push(ProcSpec::new(&name, STAGE_SOURCE, replay_args(g)?));
+        out.push(ProcSpec::new(
+            &name,
+            STAGE_SOURCE,
+            with_group(replay_args(g)?, &group),
+        ));
     }
     for x in all
         .iter()
@@ -120,6 +145,14 @@ pub fn shared_processes(p: &Pipeline) -> anyhow::Result<Vec<ProcSpec>> {
         ));
     }
     Ok(out)
+}
+
+/// `publisher --sensor LIST` + `group` + the rest (the group is an option of the publisher,
+/// before its source's subcommand).
+fn with_group(mut args: Vec<String>, group: &[String]) -> Vec<String> {
+    let at = args.len().min(3);
+    args.splice(at..at, group.iter().cloned());
+    args
 }
 
 /// One value per simulated sensor of one of its options.
@@ -321,6 +354,55 @@ source = { kind = "serial", port = "/dev/ttyX" }
         assert_eq!(value(replay, "--sensor"), "r");
         assert!(replay.contains(&"--loop".to_string()), "{replay:?}");
         assert_eq!(value(&procs[4].args, "--sensor"), "q");
+    }
+
+    #[test]
+    fn a_shared_layout_of_sim_and_replay_sources_wakes_by_group_and_one_with_a_board_does_not() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let body = |extra: &str| {
+            format!(
+                r#"
+layout = "shared"
+[[sensor]]
+id = "p"
+count = 3
+calibration = "cal.toml"
+curvature_m1 = 40
+source = {{ kind = "sim" }}
+[[sensor]]
+id = "r"
+calibration = "cal.toml"
+curvature_m1 = 0
+source = {{ kind = "replay", file = "rec.csv" }}
+{extra}
+"#
+            )
+        };
+        let p = load(dir.path(), &body("")).expect("pipeline");
+        let procs = super::shared_processes(&p).expect("processes");
+        for proc in &procs {
+            assert_eq!(
+                value(&proc.args, "--wake-group"),
+                super::WAKE_GROUP,
+                "{proc:?}"
+            );
+        }
+        // The group is the publisher's option, before its source's subcommand.
+        let sim = &procs[2].args;
+        let at = |f: &str| sim.iter().position(|a| a == f).expect(f);
+        assert!(at("--wake-group") < at("sim"), "{sim:?}");
+        let board = r#"
+[[sensor]]
+id = "q"
+calibration = "cal.toml"
+curvature_m1 = 0
+source = { kind = "serial", port = "/dev/null" }
+"#;
+        let p = load(dir.path(), &body(board)).expect("pipeline");
+        let procs = super::shared_processes(&p).expect("processes");
+        for proc in &procs {
+            assert!(!proc.args.contains(&"--wake-group".to_string()), "{proc:?}");
+        }
     }
 
     #[test]

@@ -180,7 +180,7 @@ impl Receiver {
                 .expect("taxel's subscriber opens the mirror");
             ready_tx.send(()).expect("ready");
             while !s.load(Ordering::SeqCst) {
-                let _ = sub.listener().timed_wait(|_| {}, Duration::from_millis(20));
+                let _ = sub.wait_wakeup(Duration::from_millis(20));
                 let now = now_ns();
                 let mut got = Vec::new();
                 sub.poll_each(|f| {

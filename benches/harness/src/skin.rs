@@ -97,6 +97,9 @@ fn interrupt(c: &mut Child) {
     let _ = c.wait();
 }
 
+/// The shared layout's wake-up group.
+const WAKE_GROUP: &str = "skin";
+
 /// What the probe skips before it measures (s).
 const SKIP_S: f64 = 1.0;
 
@@ -143,13 +146,17 @@ impl Proc {
     }
 }
 
-/// `role [run] --sensor LIST ARGS...` (one process per sensor, or one for all).
+/// `role [run] --sensor LIST [--wake-group G] ARGS...` (one process per sensor, or one for all,
+/// waking by group as `taxel up` starts a shared layout).
 fn role_args(role: &str, group: &str, args: &[String]) -> Vec<String> {
     let mut a = vec![s(role)];
     if role != "publisher" {
         a.push(s("run"));
     }
     a.extend([s("--sensor"), s(group)]);
+    if group.contains(',') {
+        a.extend([s("--wake-group"), s(WAKE_GROUP)]);
+    }
     a.extend_from_slice(args);
     a
 }
@@ -274,19 +281,21 @@ fn run_skin(
     // The probe measures the streams once they flow, and skips its own joining (the
     // calibrators connect it to their force streams while they send).
     std::thread::sleep(Duration::from_millis(500));
-    let mut probe = taxel(
-        &[
-            s("latency"),
-            s("--sensor"),
-            names.join(","),
-            s("--seconds"),
-            k.secs.to_string(),
-            s("--skip-s"),
-            SKIP_S.to_string(),
-            s("--json"),
-        ],
-        prefix,
-    )?;
+    let mut args = vec![
+        s("latency"),
+        s("--sensor"),
+        names.join(","),
+        s("--seconds"),
+        k.secs.to_string(),
+        s("--skip-s"),
+        SKIP_S.to_string(),
+        s("--json"),
+    ];
+    if k.shared {
+        // A consumer of the whole skin, as the shared calibrator's group lets it wait.
+        args.extend([s("--wake-group"), s(WAKE_GROUP)]);
+    }
+    let mut probe = taxel(&args, prefix)?;
     wait_nodes_for(prefix, consumers + groups.len() + 1, patience);
     std::thread::sleep(Duration::from_secs_f64(SKIP_S));
     let t0 = Instant::now();

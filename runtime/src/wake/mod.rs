@@ -9,6 +9,7 @@
 //!   the sample comes, within a token-bucket budget of 8 % of a core, and fall back to the
 //!   event when the budget runs out: busy-poll latency at a bounded share of a core.
 
+pub mod group;
 pub mod rhythm;
 
 use std::time::{Duration, Instant};
@@ -29,6 +30,8 @@ pub enum WakeMode {
 
 pub use rhythm::Learned;
 use rhythm::Rhythm;
+
+pub use group::{receive_group, GroupStats};
 
 /// Share of a core the adaptive waiter may spend polling, averaged over time (the sleeps and
 /// wake-ups around it cost about another 1.5 % on a VM).
@@ -135,7 +138,7 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
         WakeMode::Event => {
             let ws = ipc::waitset()?;
             let guard = ws
-                .attach_notification(sub.listener())
+                .attach_notification(sub.listener()?)
                 .map_err(|e| IpcError {
                     what: format!("attach {}", sub.name()),
                     detail: format!("{e:?}"),
@@ -237,7 +240,7 @@ where
     let mut guards = Vec::with_capacity(subs.len());
     for sub in subs {
         guards.push(
-            ws.attach_notification(sub.listener())
+            ws.attach_notification(sub.listener()?)
                 .map_err(|e| IpcError {
                     what: format!("attach {}", sub.name()),
                     detail: format!("{e:?}"),
