@@ -85,6 +85,11 @@ struct RoleStat {
     rss_mb: f64,
     rss_mb_max_process: f64,
     rss_warm_mb: f64,
+    /// Private memory (RssAnon: heap and stacks, not the shared-memory pools whose pages count
+    /// in VmRSS as they are first touched) of all its processes after the warm-up and at the
+    /// end (MB): a leak shows here.
+    private_warm_mb: f64,
+    private_mb: f64,
 }
 
 fn field(json: &str, key: &str) -> f64 {

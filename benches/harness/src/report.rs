@@ -128,14 +128,16 @@ fn skin_json(c: &CaseResult) -> String {
         .iter()
         .map(|r| {
             format!(
-                "{{\"role\": \"{}\", \"processes\": {}, \"cpu_pct\": {}, \"cpu_pct_max_process\": {}, \"rss_mb\": {}, \"rss_mb_max_process\": {}, \"rss_warm_mb\": {}}}",
+                "{{\"role\": \"{}\", \"processes\": {}, \"cpu_pct\": {}, \"cpu_pct_max_process\": {}, \"rss_mb\": {}, \"rss_mb_max_process\": {}, \"rss_warm_mb\": {}, \"private_warm_mb\": {}, \"private_mb\": {}}}",
                 r.role,
                 r.processes,
                 num(r.cpu_pct),
                 num(r.cpu_pct_max_process),
                 num(r.rss_mb),
                 num(r.rss_mb_max_process),
-                num(r.rss_warm_mb)
+                num(r.rss_warm_mb),
+                num(r.private_warm_mb),
+                num(r.private_mb)
             )
         })
         .collect();
@@ -163,11 +165,11 @@ fn roles_table(cases: &[CaseResult]) -> String {
     let mut md = String::new();
     for c in cases.iter().filter(|c| !c.roles.is_empty()) {
         if md.is_empty() {
-            md.push_str("\nPer role (CPU over the probe's window; resident memory, VmRSS, after a fifth of the window and at its end):\n\n| case | sensors | role | processes | CPU, all (% core) | CPU, busiest process (% core) | RSS after warm-up, all (MB) | RSS at end, all (MB) | RSS, largest process (MB) |\n|---|---:|---|---:|---:|---:|---:|---:|---:|\n");
+            md.push_str("\nPer role (CPU over the probe's window; resident memory, VmRSS, and private memory, RssAnon, after a fifth of the window and at its end):\n\n| case | sensors | role | processes | CPU, all (% core) | CPU, busiest process (% core) | RSS after warm-up, all (MB) | RSS at end, all (MB) | RSS, largest process (MB) | private after warm-up, all (MB) | private at end, all (MB) |\n|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
         }
         for r in &c.roles {
             md.push_str(&format!(
-                "| {} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
+                "| {} | {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |\n",
                 c.case,
                 c.sensors,
                 r.role,
@@ -176,7 +178,9 @@ fn roles_table(cases: &[CaseResult]) -> String {
                 r.cpu_pct_max_process,
                 r.rss_warm_mb,
                 r.rss_mb,
-                r.rss_mb_max_process
+                r.rss_mb_max_process,
+                r.private_warm_mb,
+                r.private_mb
             ));
         }
     }

@@ -103,16 +103,17 @@ const WAKE_GROUP: &str = "skin";
 /// What the probe skips before it measures (s).
 const SKIP_S: f64 = 1.0;
 
-/// Resident memory (VmRSS) of a process in KiB, from /proc (0 when it is gone).
-fn rss_kib(pid: u32) -> u64 {
-    std::fs::read_to_string(format!("/proc/{pid}/status"))
-        .ok()
-        .and_then(|st| {
-            st.lines()
-                .find_map(|l| l.strip_prefix("VmRSS:"))
-                .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
-        })
-        .unwrap_or(0)
+/// Resident memory (VmRSS) and private memory (RssAnon) of a process in KiB, from /proc (0
+/// when it is gone).
+fn rss_kib(pid: u32) -> (u64, u64) {
+    let st = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    let kib = |key: &str| {
+        st.lines()
+            .find_map(|l| l.strip_prefix(key))
+            .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+            .unwrap_or(0)
+    };
+    (kib("VmRSS:"), kib("RssAnon:"))
 }
 
 /// A skin case: how many sensors, in which layout.
@@ -130,8 +131,9 @@ struct Proc {
     role: &'static str,
     child: Child,
     cpu0: f64,
-    rss_warm: u64,
-    rss_end: u64,
+    /// (VmRSS, RssAnon) in KiB.
+    rss_warm: (u64, u64),
+    rss_end: (u64, u64),
 }
 
 impl Proc {
@@ -140,8 +142,8 @@ impl Proc {
             role,
             child,
             cpu0: 0.0,
-            rss_warm: 0,
-            rss_end: 0,
+            rss_warm: (0, 0),
+            rss_end: (0, 0),
         }
     }
 }
@@ -311,12 +313,12 @@ fn run_skin(
         if probe.try_wait()?.is_some() {
             break;
         }
-        let rss: Vec<u64> = procs.iter().map(|p| rss_kib(p.child.id())).collect();
+        let rss: Vec<(u64, u64)> = procs.iter().map(|p| rss_kib(p.child.id())).collect();
         for (p, r) in procs.iter_mut().zip(&rss) {
             if !warm_taken && t0.elapsed() >= warm {
                 p.rss_warm = *r;
             }
-            if *r > 0 {
+            if r.0 > 0 {
                 p.rss_end = *r;
             }
         }
@@ -350,6 +352,9 @@ fn run_skin(
     res.sensors = k.sensors;
     res.expected = k.sensors as f64 * k.rate * field(&json, "seconds");
     for role in ["publisher", "estimator", "calibrator"] {
+        let mb = |of: &[(&Proc, f64)], f: fn(&Proc) -> u64| {
+            of.iter().map(|(p, _)| f(p)).sum::<u64>() as f64 / 1024.0
+        };
         let of: Vec<(&Proc, f64)> = procs
             .iter()
             .zip(&cpu)
@@ -361,10 +366,12 @@ fn run_skin(
             processes: of.len(),
             cpu_pct: of.iter().map(|(_, c)| c).sum(),
             cpu_pct_max_process: of.iter().map(|(_, c)| *c).fold(0.0, f64::max),
-            rss_mb: of.iter().map(|(p, _)| p.rss_end).sum::<u64>() as f64 / 1024.0,
-            rss_mb_max_process: of.iter().map(|(p, _)| p.rss_end).max().unwrap_or(0) as f64
+            rss_mb: mb(&of, |p| p.rss_end.0),
+            rss_mb_max_process: of.iter().map(|(p, _)| p.rss_end.0).max().unwrap_or(0) as f64
                 / 1024.0,
-            rss_warm_mb: of.iter().map(|(p, _)| p.rss_warm).sum::<u64>() as f64 / 1024.0,
+            rss_warm_mb: mb(&of, |p| p.rss_warm.0),
+            private_warm_mb: mb(&of, |p| p.rss_warm.1),
+            private_mb: mb(&of, |p| p.rss_end.1),
         });
     }
     res.roles.push(RoleStat {
