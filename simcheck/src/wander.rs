@@ -42,9 +42,11 @@ pub const QUIET_AFTER_S: f64 = 1.0;
 /// and what makes it is structure the start model leaves at rest (a logarithmic law's steep
 /// foot under the load cell's noise after unloading: zoo-log, training seed 1, every case read
 /// 1 s at the variance grid's top; a Preisach remnant after each release: zoo-sat's hysteresis,
-/// seed 1, 2 s). True wanders read 16-32 s on the training seeds (zoo-sat's 30 s, zoo-amp's
-/// 40 s).
-pub const MIN_TAU_S: f64 = 4.0;
+/// seed 1, 2 s). True wanders read 16-64 s on the training seeds (zoo-sat's 30 s, zoo-amp's
+/// 40 s). The bar was 4 s at first; world B's creep recording read 4 s (its creep's recovery
+/// at rest, taken out as wander: held-out RMSE 6.24 -> 2.76 became 5.04 -> 3.55 and its test
+/// failed), and a wander as fast as a press is not interpolated under one anyway.
+pub const MIN_TAU_S: f64 = 8.0;
 
 /// The variance grid's top, in multiples of the observation noise `own / n` (see
 /// [`CommonWander::estimate`]); a fit at the top is not a wander either.
@@ -343,7 +345,7 @@ mod tests {
         let ctx = Context::new(&ds);
         let resid: Vec<f64> = ds.y.iter().map(|y| 100.0 - y).collect();
         let mut cw = CommonWander::estimate(&ctx, &resid, 1.0);
-        assert!(cw.variance > 1.0 && cw.tau_s >= 4.0, "{cw:?}");
+        assert!(cw.variance > 1.0 && cw.tau_s >= MIN_TAU_S, "{cw:?}");
         let fixed = cw.take_out(&ctx, &resid).expect("a wander");
         // The variance of a series (a constant offset is any node's baseline).
         let var = |v: &[f64]| {
