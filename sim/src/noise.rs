@@ -50,6 +50,10 @@ pub struct NoiseModel {
     /// AR(1) wander (None = off).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub wander: Option<Wander>,
+    /// A second AR(1) wander with its own size, correlation time and mode, added to the first
+    /// (a common and a per-node wander at once); None = off.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub second_wander: Option<Wander>,
     /// Rate of spikes on each node (Hz; 0 = none). A spike lasts one frame.
     pub spike_rate_hz: f64,
     /// Size of a spike (counts; ohms for `resistance`); its sign is random.
@@ -60,6 +64,7 @@ impl Default for NoiseModel {
     fn default() -> Self {
         NoiseModel {
             wander: None,
+            second_wander: None,
             spike_rate_hz: 0.0,
             spike_counts: 0.0,
         }
@@ -73,17 +78,24 @@ impl NoiseModel {
 
     /// Whether any disturbance is on.
     pub fn active(&self) -> bool {
-        self.wander.is_some() || (self.spike_rate_hz > 0.0 && self.spike_counts != 0.0)
+        self.wander.is_some()
+            || self.second_wander.is_some()
+            || (self.spike_rate_hz > 0.0 && self.spike_counts != 0.0)
     }
 
     pub fn validate(&self) -> Result<(), SimError> {
         let bad = |what: &str, v: f64| Err(SimError::Invalid(format!("{what}, got {v}")));
-        if let Some(w) = &self.wander {
-            if !(w.sd_counts.is_finite() && w.sd_counts >= 0.0) {
-                return bad("noise.wander.sd_counts must be >= 0", w.sd_counts);
-            }
-            if !(w.tau_s.is_finite() && w.tau_s > 0.0) {
-                return bad("noise.wander.tau_s must be > 0", w.tau_s);
+        for (name, w) in [
+            ("wander", &self.wander),
+            ("second_wander", &self.second_wander),
+        ] {
+            if let Some(w) = w {
+                if !(w.sd_counts.is_finite() && w.sd_counts >= 0.0) {
+                    return bad(&format!("noise.{name}.sd_counts must be >= 0"), w.sd_counts);
+                }
+                if !(w.tau_s.is_finite() && w.tau_s > 0.0) {
+                    return bad(&format!("noise.{name}.tau_s must be > 0"), w.tau_s);
+                }
             }
         }
         if !(self.spike_rate_hz.is_finite() && (0.0..=1000.0).contains(&self.spike_rate_hz)) {
@@ -103,15 +115,49 @@ impl NoiseModel {
 #[derive(Debug, Clone)]
 pub struct NoiseLayers {
     model: NoiseModel,
-    wander: Vec<f64>,
-    wander_rng: Rng,
+    wanders: [WanderState; 2],
     spike_rng: Rng,
     extra: Vec<f64>,
 }
 
+/// One wander's states (one, or one per node) and its random stream.
+#[derive(Debug, Clone)]
+struct WanderState {
+    states: Vec<f64>,
+    rng: Rng,
+}
+
+impl WanderState {
+    /// Advances `w` by `dt_s` and adds it to `extra`.
+    fn add(&mut self, w: &Wander, dt_s: f64, extra: &mut [f64]) {
+        let n = extra.len();
+        let count = match w.mode {
+            WanderMode::Common => 1,
+            WanderMode::PerNode => n,
+        };
+        if self.states.is_empty() {
+            self.states = (0..count)
+                .map(|_| w.sd_counts * self.rng.normal())
+                .collect();
+        } else {
+            let a = (-dt_s / w.tau_s).exp();
+            let kick = w.sd_counts * (1.0 - a * a).max(0.0).sqrt();
+            for x in self.states.iter_mut() {
+                *x = a * *x + kick * self.rng.normal();
+            }
+        }
+        for (k, e) in extra.iter_mut().enumerate() {
+            *e += self.states[k % count];
+        }
+    }
+}
+
+/// How far the second wander's stream lies from the first's.
+pub const SECOND_WANDER_STREAM_OFFSET: u64 = 500;
+
 impl NoiseLayers {
     /// State for `n` nodes; the draws use the streams `wander_stream` and `spike_stream` of
-    /// `seed`.
+    /// `seed` (the second wander `wander_stream + SECOND_WANDER_STREAM_OFFSET`).
     pub fn new(
         model: &NoiseModel,
         n: usize,
@@ -119,10 +165,16 @@ impl NoiseLayers {
         wander_stream: u64,
         spike_stream: u64,
     ) -> Self {
+        let state = |stream: u64| WanderState {
+            states: Vec::new(),
+            rng: Rng::new(seed, stream),
+        };
         NoiseLayers {
             model: model.clone(),
-            wander: Vec::new(),
-            wander_rng: Rng::new(seed, wander_stream),
+            wanders: [
+                state(wander_stream),
+                state(wander_stream + SECOND_WANDER_STREAM_OFFSET),
+            ],
             spike_rng: Rng::new(seed, spike_stream),
             extra: vec![0.0; n],
         }
@@ -134,26 +186,11 @@ impl NoiseLayers {
         if !self.model.active() {
             return None;
         }
-        let n = self.extra.len();
         self.extra.fill(0.0);
-        if let Some(w) = &self.model.wander {
-            let states = match w.mode {
-                WanderMode::Common => 1,
-                WanderMode::PerNode => n,
-            };
-            if self.wander.is_empty() {
-                self.wander = (0..states)
-                    .map(|_| w.sd_counts * self.wander_rng.normal())
-                    .collect();
-            } else {
-                let a = (-dt_s / w.tau_s).exp();
-                let kick = w.sd_counts * (1.0 - a * a).max(0.0).sqrt();
-                for x in self.wander.iter_mut() {
-                    *x = a * *x + kick * self.wander_rng.normal();
-                }
-            }
-            for (k, e) in self.extra.iter_mut().enumerate() {
-                *e += self.wander[k % states];
+        let specs = [&self.model.wander, &self.model.second_wander];
+        for (spec, state) in specs.into_iter().zip(self.wanders.iter_mut()) {
+            if let Some(w) = spec {
+                state.add(w, dt_s, &mut self.extra);
             }
         }
         if self.model.spike_rate_hz > 0.0 && self.model.spike_counts != 0.0 {
@@ -218,6 +255,52 @@ mod tests {
             c.iter().all(|f| f.iter().all(|v| *v == f[0])),
             "common: shared"
         );
+    }
+
+    #[test]
+    fn a_second_wander_adds_a_per_node_part_to_a_common_one() {
+        let common = Wander {
+            sd_counts: 2.0,
+            tau_s: 1.0,
+            mode: WanderMode::Common,
+        };
+        let m = NoiseModel {
+            wander: Some(common.clone()),
+            second_wander: Some(Wander {
+                sd_counts: 0.5,
+                tau_s: 1.0,
+                mode: WanderMode::PerNode,
+            }),
+            ..NoiseModel::default()
+        };
+        let s = series(&m, 4, 20_000, 0.01);
+        // The first wander's draws are those of a model without the second.
+        let alone = series(
+            &NoiseModel {
+                wander: Some(common),
+                ..NoiseModel::default()
+            },
+            4,
+            20_000,
+            0.01,
+        );
+        let diff: Vec<f64> = s
+            .iter()
+            .zip(&alone)
+            .flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| x - y).collect::<Vec<_>>())
+            .collect();
+        let sd = (diff.iter().map(|x| x * x).sum::<f64>() / diff.len() as f64).sqrt();
+        assert!((sd - 0.5).abs() < 0.08, "second wander sd {sd}");
+        assert_ne!(diff[400], diff[401], "per node: independent");
+        let bad = NoiseModel {
+            second_wander: Some(Wander {
+                sd_counts: -1.0,
+                ..Wander::default()
+            }),
+            ..NoiseModel::default()
+        };
+        let e = bad.validate().expect_err("negative sd").to_string();
+        assert!(e.contains("noise.second_wander.sd_counts"), "{e}");
     }
 
     #[test]

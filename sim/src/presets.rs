@@ -14,7 +14,10 @@
 //! - `zoo-sat`: saturating (hyperbolic) law with per-node shape spread, linear curvature
 //!   sensitivity, the 10-bit amplifier, common-mode wander, 1.4 counts of noise;
 //! - `zoo-pow`: power law with a strong per-node exponent spread, exponential curvature
-//!   sensitivity, an inverted 10-bit amplifier, 0.5 counts of noise, per-node wander.
+//!   sensitivity, an inverted 10-bit amplifier, 0.5 counts of noise, per-node wander;
+//! - `zoo-amp`: the paper's board (10-bit non-inverting amplifier) with a steeper power law and
+//!   a per-node exponent spread, a strong common-mode wander plus a per-node one, 1 count of
+//!   noise and rare spikes.
 
 use crate::footprint::Footprint;
 use crate::forms::{BaselineForm, Law, SensitivityForm};
@@ -22,13 +25,14 @@ use crate::model::{ReadoutKind, SensorModel};
 use crate::noise::{Wander, WanderMode};
 
 /// Names accepted by [`preset`].
-pub const NAMES: [&str; 6] = [
+pub const NAMES: [&str; 7] = [
     "default",
     "paper-dataset",
     "alt",
     "zoo-log",
     "zoo-sat",
     "zoo-pow",
+    "zoo-amp",
 ];
 
 /// The model called `name`.
@@ -118,6 +122,25 @@ pub fn preset(name: &str) -> Option<SensorModel> {
                 tau_s: 15.0,
                 mode: WanderMode::PerNode,
             });
+        }
+        "zoo-amp" => {
+            m.material.gain_us_per_n = 200.0;
+            m.material.exponent = 1.2;
+            m.material.r_floor_ohm = 300.0;
+            m.spread.node_exponent_log_sd = 0.12;
+            m.readout.noise_counts = 1.0;
+            m.noise.wander = Some(Wander {
+                sd_counts: 2.0,
+                tau_s: 40.0,
+                mode: WanderMode::Common,
+            });
+            m.noise.second_wander = Some(Wander {
+                sd_counts: 0.7,
+                tau_s: 8.0,
+                mode: WanderMode::PerNode,
+            });
+            m.noise.spike_rate_hz = 0.01;
+            m.noise.spike_counts = 20.0;
         }
         _ => return None,
     }

@@ -100,7 +100,8 @@ fn mount(
 /// One reading's noise (counts): white plus wander.
 fn frame_noise(m: &SensorModel) -> f64 {
     let w = m.noise.wander.as_ref().map_or(0.0, |w| w.sd_counts);
-    (m.readout.noise_counts.powi(2) + w * w).sqrt()
+    let w2 = m.noise.second_wander.as_ref().map_or(0.0, |w| w.sd_counts);
+    (m.readout.noise_counts.powi(2) + w * w + w2 * w2).sqrt()
 }
 
 /// Checks (a)-(d) on a preset; returns the 10 N block readings and responses at 0 and 80 1/m.
@@ -174,6 +175,11 @@ fn zoo_sat_stays_in_range_and_loses_a_fifth_to_a_half_when_bent() {
 #[test]
 fn zoo_pow_stays_in_range_and_loses_a_fifth_to_a_half_when_bent() {
     check_and_print("zoo-pow");
+}
+
+#[test]
+fn zoo_amp_stays_in_range_and_loses_a_fifth_to_a_half_when_bent() {
+    check_and_print("zoo-amp");
 }
 
 /// Checks a preset and prints what it reads (seen with `--nocapture`).

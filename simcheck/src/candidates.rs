@@ -274,7 +274,19 @@ fn candidate_variants(
             .copied()
             .filter(|p| *p != Param::CurvBeta)
             .collect();
-        return vec![(starts, params), (vec![per_trial], held)];
+        // And one factor per trial and node: the contact's footprint moving with the mounting
+        // changes every node's share of the load (each node pays for its factors).
+        let n = ctx.ds.n;
+        let per_node = Config {
+            curv_trials: Some(vec![1.0; ctx.ds.n_trials * n]),
+            curv_per_node: Some(n),
+            ..per_trial.clone()
+        };
+        return vec![
+            (starts, params),
+            (vec![per_trial], held.clone()),
+            (vec![per_node], held),
+        ];
     }
     if e == EffectKind::Hysteresis {
         // One start per half-width (the additive starts come twice, with mix 0 and 1), each
@@ -394,6 +406,10 @@ pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
         },
         EffectKind::CurvatureBaseline => (0, 1),
         EffectKind::CurvatureSensitivity => match &cfg.curv_trials {
+            Some(g) if cfg.curv_per_node.is_some() => {
+                let nn = cfg.curv_per_node.unwrap_or(1).max(1);
+                (0, (g.len() / nn).saturating_sub(1))
+            }
             Some(g) => (g.len().saturating_sub(1), 0),
             None => (1, 0),
         },
@@ -493,6 +509,35 @@ mod tests {
             k(&bouc_wen.0[0]),
             ParamCount {
                 global: 4,
+                per_node: 0
+            }
+        );
+        // Curvature sensitivity without a curvature column: the trial shift's form, one
+        // factor per trial, or one per trial and node (charged per node).
+        let mut trials = presses();
+        let len = trials.len();
+        trials.trial = (0..len).map(|i| i * 4 / len).collect();
+        trials.n_trials = 4;
+        let tctx = Context::new(&trials);
+        let sens = candidates(
+            &tctx,
+            &Config::base(1.0, 0.0),
+            EffectKind::CurvatureSensitivity,
+        );
+        assert_eq!(sens.len(), 3);
+        let per_node = &sens[2].0[0];
+        assert_eq!(per_node.curv_per_node, Some(1));
+        assert_eq!(
+            n_params(per_node, EffectKind::CurvatureSensitivity),
+            ParamCount {
+                global: 0,
+                per_node: 3
+            }
+        );
+        assert_eq!(
+            n_params(&sens[1].0[0], EffectKind::CurvatureSensitivity),
+            ParamCount {
+                global: 3,
                 per_node: 0
             }
         );

@@ -5,26 +5,44 @@
 use crate::cv::{Cv, Verdict};
 use crate::data::Dataset;
 use crate::effects::EffectKind;
+use crate::noise::NoiseModel;
 
 /// Physics an effect must show beyond a lower error: thermal drift inferred without a
 /// temperature column must also improve the no-load samples (temperature moves unloaded
 /// nodes; creep and hysteresis cannot); hysteresis must be rate-independent.
-pub fn signature_check(ds: &Dataset, e: EffectKind, before: &Cv, after: &Cv, v: &mut Verdict) {
+pub fn signature_check(
+    ds: &Dataset,
+    noise: &NoiseModel,
+    e: EffectKind,
+    before: &Cv,
+    after: &Cv,
+    v: &mut Verdict,
+) {
     // With a temperature column the correlation with the recorded temperature is the evidence;
     // without one, a slow common-mode factor could also mimic slow creep, so it must show on
-    // unloaded samples too.
-    if e == EffectKind::ThermalDrift && ds.temp.is_none() && v.rest_block_t < MIN_REST_T {
-        v.accepted = false;
-        v.keep = false;
+    // unloaded samples too: on the readings as recorded (the wander taken out of them took a
+    // drift's rest share with it).
+    if e == EffectKind::ThermalDrift && ds.temp.is_none() {
+        let rest_t = rest_block_t_as_recorded(ds, noise, before, after);
+        if rest_t < MIN_REST_T {
+            v.accepted = false;
+            v.keep = false;
+        }
     }
     // Thermal drift is a gain: it must carry the residual alike near the rest level and far
     // above it (an additive wander common to the nodes, fitted as a factor, does not).
     if e == EffectKind::ThermalDrift {
-        let [rest, loaded] = gain_betas(ds, before, after);
+        let ([rest, loaded], se_rest) = gain_betas(ds, noise, before, after);
         v.gain_betas = Some([rest, loaded]);
         if rest.is_finite() && loaded.is_finite() {
-            let ratio = loaded / rest;
-            if !(rest > 0.0 && loaded > 0.0 && (GAIN_RATIO[0]..=GAIN_RATIO[1]).contains(&ratio)) {
+            // Matched at rest and overshot under load: a wander fitted as a factor.
+            let wander_like = loaded <= 0.0 || (rest > 0.0 && loaded < GAIN_RATIO[0] * rest);
+            // Far more under load than at rest (an effect of the load standing in for a
+            // drift), counted only when the rest beta is measured well enough to say so: a
+            // wander at rest can make it uncertain.
+            let load_like =
+                loaded > GAIN_RATIO[1] * rest && loaded / GAIN_RATIO[1] - rest > 2.0 * se_rest;
+            if wander_like || load_like {
                 v.accepted = false;
                 v.keep = false;
             }
@@ -36,9 +54,10 @@ pub fn signature_check(ds: &Dataset, e: EffectKind, before: &Cv, after: &Cv, v: 
         let [slow, fast] = ramp_betas(ds, before, after);
         v.ramp_betas = Some([slow, fast]);
         let ratio = fast / slow;
-        let share = loop_share(ds, before, after);
-        v.loop_share = Some(share);
-        let is_loop = share >= MIN_LOOP_SHARE;
+        v.loop_share = Some(loop_share(ds, before, after));
+        let removed = loop_removed_share(ds, before, after);
+        v.loop_removed = Some(removed);
+        let is_loop = removed >= MIN_LOOP_SHARE;
         let rate_independent =
             slow > 0.0 && fast > 0.0 && (RATE_RATIO[0]..=RATE_RATIO[1]).contains(&ratio);
         if !(rate_independent && is_loop) {
@@ -48,7 +67,12 @@ pub fn signature_check(ds: &Dataset, e: EffectKind, before: &Cv, after: &Cv, v: 
     }
 }
 
-/// Least share of a hysteresis candidate's change that must follow the loading direction.
+/// Least share of what a hysteresis candidate removes from the residual that must be a loop
+/// (see [`loop_removed_share`]). Until issue 20's third round the share was that of the
+/// candidate's change itself ([`loop_share`], still reported), which also counts how the
+/// static law refits around the loop: a loop whose mean over its branches is not the static
+/// law (a multiplicative Dahl loop on zoo-amp, training seed 4: 41 % of the held-out SSE, 61 %
+/// of it from the loop) read 0.47 there and was refused.
 pub const MIN_LOOP_SHARE: f64 = 0.5;
 
 /// How much of the change `d` an added effect makes to the held-out prediction is a loop: on
@@ -59,11 +83,40 @@ pub const MIN_LOOP_SHARE: f64 = 0.5;
 /// loop), 0 for one that only follows the level (a static law's share a flexible hysteresis
 /// form can take: relays of tiny width are a staircase in the load).
 pub fn loop_share(ds: &Dataset, before: &Cv, after: &Cv) -> f64 {
+    let (lp, st) = loop_and_level(ds, &|idx| after.resid[idx] - before.resid[idx]);
+    if lp + st > 0.0 {
+        lp / (lp + st)
+    } else {
+        0.0
+    }
+}
+
+/// How much of what a change removes from the residual is a loop: the loop and level parts of
+/// the residual (as in [`loop_share`]) before and after; the share of the loop part's fall in
+/// the two parts' falls (the level part's change counted by its size, either way). 1 when the
+/// change takes out direction-dependent structure and leaves the level alone; low when its gain
+/// comes from the level (a staircase of narrow relays fitting the static law).
+pub fn loop_removed_share(ds: &Dataset, before: &Cv, after: &Cv) -> f64 {
+    let (lb, sb) = loop_and_level(ds, &|idx| before.resid[idx]);
+    let (la, sa) = loop_and_level(ds, &|idx| after.resid[idx]);
+    let (dl, ds_) = (lb - la, (sb - sa).abs());
+    if dl > 0.0 {
+        dl / (dl + ds_)
+    } else {
+        0.0
+    }
+}
+
+/// The loop and level parts of `x` (per node-sample): on moving samples (faster than 5 % of
+/// the peak force per second) binned by force (8 bins up to the peak), the mean of `x` on
+/// loading and on unloading; the loop part is half their difference, the level part their
+/// mean, each summed over bins by magnitude and weighted by the bin's samples.
+fn loop_and_level(ds: &Dataset, x: &dyn Fn(usize) -> f64) -> (f64, f64) {
     const BINS: usize = 8;
     let (len, n) = (ds.len(), ds.n);
     let fmax = ds.max_force().max(1e-12);
     let bin = |f: f64| ((f.max(0.0) / fmax * BINS as f64) as usize).min(BINS - 1);
-    // Per bin and direction: sum of d over nodes and samples, and count.
+    // Per bin and direction: sum of x over nodes and samples, and count.
     let mut acc = [[(0.0f64, 0usize); 2]; BINS];
     for i in 0..len {
         let (a, b) = (i.saturating_sub(2), (i + 2).min(len - 1));
@@ -80,8 +133,7 @@ pub fn loop_share(ds: &Dataset, before: &Cv, after: &Cv) -> f64 {
         let dir = usize::from(rate < 0.0);
         let cell = &mut acc[bin(ds.force[i])][dir];
         for k in 0..n {
-            let idx = i * n + k;
-            cell.0 += after.resid[idx] - before.resid[idx];
+            cell.0 += x(i * n + k);
             cell.1 += 1;
         }
     }
@@ -96,11 +148,7 @@ pub fn loop_share(ds: &Dataset, before: &Cv, after: &Cv) -> f64 {
         lp += w * 0.5 * (ml - mu).abs();
         st += w * 0.5 * (ml + mu).abs();
     }
-    if lp + st > 0.0 {
-        lp / (lp + st)
-    } else {
-        0.0
-    }
+    (lp, st)
 }
 
 /// How much of the current residual an added effect's contribution explains on slow and on
@@ -191,7 +239,7 @@ pub const GAIN_RATIO: [f64; 2] = [1.0 / 3.0, 3.0];
 /// wander common to the nodes, fitted by a factor, is matched at rest and overshot (or missed)
 /// under load. `NaN` where the drift changes nothing (a drift of the force term only leaves
 /// the rest level alone: the check does not apply).
-pub fn gain_betas(ds: &Dataset, before: &Cv, after: &Cv) -> [f64; 2] {
+pub fn gain_betas(ds: &Dataset, noise: &NoiseModel, before: &Cv, after: &Cv) -> ([f64; 2], f64) {
     let (len, n) = (ds.len(), ds.n);
     let fmax = ds.max_force().max(1e-12);
     let dom: Vec<f64> = ds.y.iter().map(|&y| ds.map.dom(y)).collect();
@@ -214,11 +262,15 @@ pub fn gain_betas(ds: &Dataset, before: &Cv, after: &Cv) -> [f64; 2] {
     }
     far.sort_by(|a, b| b.0.total_cmp(&a.0));
     far.truncate(far.len() / 2);
+    // The residual as recorded: the wander taken out of the readings put back (it took a
+    // drift's rest share with it).
+    let w = &noise.wander.taken_out;
+    let recorded = |j: usize| before.resid[j] + w.get(j / n.max(1)).copied().unwrap_or(0.0);
     let beta = |idx: &mut dyn Iterator<Item = usize>| -> (f64, f64) {
         let (mut num, mut den, mut count) = (0.0, 0.0, 0usize);
         for j in idx {
             let d = after.resid[j] - before.resid[j];
-            num -= d * before.resid[j];
+            num -= d * recorded(j);
             den += d * d;
             count += 1;
         }
@@ -232,9 +284,48 @@ pub fn gain_betas(ds: &Dataset, before: &Cv, after: &Cv) -> [f64; 2] {
     let (b_far, d_far) = beta(&mut far.iter().map(|p| p.1));
     // A change at rest under 1 % of the loaded one (per sample, squared): the rest says nothing.
     if d_rest.is_nan() || d_far.is_nan() || d_far <= 0.0 || d_rest <= 0.01 * d_far {
-        return [f64::NAN; 2];
+        return ([f64::NAN; 2], f64::NAN);
     }
-    [b_rest, b_far]
+    // The rest beta's standard error in the noise model (its common wander included):
+    // `sqrt(d' C d) / d' d` over the rest samples.
+    let d_at_rest: Vec<f64> = (0..len * n)
+        .map(|j| {
+            if rest[j / n.max(1)] {
+                after.resid[j] - before.resid[j]
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let dd: f64 = d_at_rest.iter().map(|v| v * v).sum();
+    let se_rest = noise.quadratic(&d_at_rest, n, ds.dt()).sqrt() / dd.max(1e-300);
+    ([b_rest, b_far], se_rest)
+}
+
+/// The block t statistic of the held-out SSE's fall on no-load samples (force at most 2 % of
+/// its peak) with the wander taken out of the readings put back (`Verdict::rest_block_t` is
+/// on the readings without it).
+fn rest_block_t_as_recorded(ds: &Dataset, noise: &NoiseModel, before: &Cv, after: &Cv) -> f64 {
+    let w = &noise.wander.taken_out;
+    if w.is_empty() {
+        return crate::cv::block_t_of(&before.rest_block_sse, &after.rest_block_sse);
+    }
+    let n = ds.n;
+    let limit = 0.02 * ds.max_force();
+    let blocks = before.block_sse.len();
+    let (mut b, mut a) = (vec![0.0; blocks], vec![0.0; blocks]);
+    let block = crate::context::block_of(ds);
+    for i in (0..ds.len()).filter(|&i| ds.force[i] <= limit) {
+        for k in 0..n {
+            let idx = i * n + k;
+            if before.resid[idx] == 0.0 && after.resid[idx] == 0.0 {
+                continue;
+            }
+            b[block[i]] += (before.resid[idx] + w[i]).powi(2);
+            a[block[i]] += (after.resid[idx] + w[i]).powi(2);
+        }
+    }
+    crate::cv::block_t_of(&b, &a)
 }
 
 /// Block t statistic thermal drift needs on no-load samples.
@@ -282,7 +373,8 @@ mod tests {
         // A gain drift of 1 % times `slow`: the residual it leaves, and the change that undoes it.
         let gain_r: Vec<f64> = dom.iter().zip(&slow).map(|(y, s)| -0.01 * s * y).collect();
         let after = cv(vec![0.0; ds.len()]);
-        let [rest, far] = gain_betas(&ds, &cv(gain_r.clone()), &after);
+        let noise = NoiseModel::white(1, 1.0);
+        let ([rest, far], _) = gain_betas(&ds, &noise, &cv(gain_r.clone()), &after);
         assert!(
             (rest - 1.0).abs() < 1e-9 && (far - 1.0).abs() < 1e-9,
             "{rest} {far}"
@@ -295,7 +387,7 @@ mod tests {
             .zip(&dom)
             .map(|(r, y)| r - r * y / dom[0])
             .collect());
-        let [rest, far] = gain_betas(&ds, &cv(offset_r), &change);
+        let ([rest, far], _) = gain_betas(&ds, &noise, &cv(offset_r), &change);
         assert!(fmax > 0.0 && (rest - 1.0).abs() < 0.05, "{rest}");
         assert!(far / rest < GAIN_RATIO[0], "{rest} {far}");
     }
@@ -311,6 +403,29 @@ mod tests {
         let fmax = ds.max_force();
         let stair: Vec<f64> = ds.force.iter().map(|f| (4.0 * f / fmax).floor()).collect();
         assert!(loop_share(&ds, &zero, &cv(stair)) < 0.2);
+    }
+
+    #[test]
+    fn what_a_loop_removes_is_a_loop_even_when_the_level_refits_around_it() {
+        let ds = presses();
+        let dfdt = slope(&ds);
+        let fmax = ds.max_force();
+        let looped: Vec<f64> = dfdt.iter().map(|d| 0.5 * d.signum()).collect();
+        let stair: Vec<f64> = ds.force.iter().map(|f| (4.0 * f / fmax).floor()).collect();
+        // The residual: a loop on top of a level misfit.
+        let before: Vec<f64> = looped
+            .iter()
+            .zip(&stair)
+            .map(|(l, s)| l + 0.3 * s)
+            .collect();
+        // A loop form takes the loop out and moves the level a little (the law refits): its
+        // change follows the level about as much as the direction.
+        let loop_fit: Vec<f64> = stair.iter().map(|s| 0.25 * s).collect();
+        let (b, a) = (cv(before.clone()), cv(loop_fit));
+        assert!(loop_removed_share(&ds, &b, &a) > 0.7);
+        // A staircase takes the level out and leaves the loop.
+        let stair_fit = cv(looped.clone());
+        assert!(loop_removed_share(&ds, &b, &stair_fit) < 0.2);
     }
 
     #[test]

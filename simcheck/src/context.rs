@@ -277,6 +277,11 @@ fn load_scale(ds: &Dataset, g_obs: &[f64], rest: &[bool]) -> Vec<f64> {
         .collect()
 }
 
+/// Each sample's cross-validation block (see [`Context::block`]).
+pub fn block_of(ds: &Dataset) -> Vec<usize> {
+    blocks(ds).0
+}
+
 /// Contiguous time blocks, cut at trial changes too, about 1/24 of the recording each (at
 /// least 2 s and 20 samples); consecutive blocks alternate between the two folds.
 #[allow(clippy::needless_range_loop)]

@@ -8,10 +8,9 @@ use std::time::Instant;
 use serde::Serialize;
 use taxel_sim::SensorModel;
 
-use crate::candidates::{applicable, candidates, n_params, ParamCount};
-use crate::checks::signature_check;
+use crate::candidates::applicable;
 use crate::context::Context;
-use crate::cv::{compare, cross_validate, cross_validate_from, Cv, Verdict};
+use crate::cv::{cross_validate, Cv, Verdict};
 use crate::data::Dataset;
 use crate::effects::{Config, EffectKind};
 use crate::forms::max_scan_skew;
@@ -21,19 +20,9 @@ use crate::model::evaluate;
 use crate::named::{effect_params, evidence};
 pub use crate::named::{hysteresis_weight, in_load_as_sim, NamedEffect};
 use crate::noise::NoiseModel;
-use crate::search::{all_params, base_params, fit_all, refit_params, train_sse, Param};
+use crate::search::{base_params, fit_all};
 use crate::unexplained::find_unexplained;
 pub use crate::unexplained::Unexplained;
-
-/// A variant of a candidate effect: its starting points and searched parameters.
-type Variant = (Vec<Config>, Vec<Param>);
-
-/// A candidate held out: its cross-validation, verdict, and whether the verdict is the
-/// screening's.
-type Tested = (Cv, Verdict, bool);
-
-/// The best candidate of a round: effect, its cross-validation and verdict.
-type Best = (EffectKind, Cv, Verdict);
 
 /// Search effort.
 #[derive(Debug, Clone, Copy)]
@@ -83,6 +72,9 @@ pub struct Diagnosis {
     pub base: Config,
     pub final_cfg: Config,
     pub trials: Vec<Trial>,
+    /// The backward pass's tests: each effect in the model held out without it (`verdict`:
+    /// the model with it against the model without; `keep` false: it was dropped).
+    pub backward: Vec<Trial>,
     pub skipped: Vec<(String, String)>,
     pub base_findings: Findings,
     pub final_findings: Findings,
@@ -135,11 +127,23 @@ pub fn diagnose_with(
     });
     let whole = crate::timing::span("diagnosis");
     let sp = crate::timing::span("start model");
-    let ctx = Context::new(ds);
     let ev_n = opts.max_evals;
-    let cfg0 = start_config(&ctx, start);
+    // The wander every node shares, estimated from the start model's held-out residual at rest
+    // and taken out of the readings (see `crate::wander`); the diagnosis runs on what is left.
+    let ctx0 = Context::new(ds);
+    let cfg0 = start_config(&ctx0, start);
     let bp = base_params(&cfg0);
-    let start_cv = cross_validate(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
+    let start_cv0 = cross_validate(&ctx0, std::slice::from_ref(&cfg0), &bp, ev_n);
+    let mut wander = NoiseModel::estimate(&ctx0, &start_cv0.resid).wander;
+    let corrected = wander.take_out(&ctx0, &start_cv0.resid);
+    let (ctx, start_cv) = match &corrected {
+        Some(fixed) => {
+            let ctx = Context::new(fixed);
+            let cv = cross_validate(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
+            (ctx, cv)
+        }
+        None => (ctx0, start_cv0),
+    };
     let start_fit = fit_all(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
     let mut skipped = Vec::new();
     for e in EffectKind::ALL {
@@ -147,8 +151,10 @@ pub fn diagnose_with(
             skipped.push((e.name().to_string(), why.to_string()));
         }
     }
+    let mut noise = NoiseModel::estimate(&ctx, &start_cv.resid);
+    noise.wander = wander;
     let screen = ctx.coarser(crate::screen::FACTOR);
-    let mut sel = Selection {
+    let mut sel = crate::selection::Selection {
         ctx: &ctx,
         screen: &screen,
         ev_n,
@@ -156,9 +162,11 @@ pub fn diagnose_with(
         cur: start_fit,
         cur_cv: start_cv.clone(),
         trials: Vec::new(),
+        backward: Vec::new(),
+        last_fits: BTreeMap::new(),
         last: None,
         fixed: BTreeMap::new(),
-        noise: NoiseModel::estimate(&ctx, &start_cv.resid),
+        noise,
         spline_m: SPLINE_SIZES[0],
         progress,
     };
@@ -182,10 +190,11 @@ pub fn diagnose_with(
     let mut contributions = sel.backward();
     drop(sp);
     let sp = crate::timing::span("final model, SIM.toml law, findings");
-    let Selection {
+    let crate::selection::Selection {
         mut cur,
         cur_cv,
         trials,
+        backward,
         fixed,
         noise,
         ..
@@ -261,13 +270,14 @@ pub fn diagnose_with(
         base,
         final_cfg: cur,
         trials,
+        backward,
         skipped,
         base_findings,
         final_findings,
         base_cv,
         final_cv: cur_cv,
-        base_pred: base_eval.pred,
-        final_pred: final_eval.pred,
+        base_pred: with_wander(&noise, ds.n, base_eval.pred),
+        final_pred: with_wander(&noise, ds.n, final_eval.pred),
         final_theta: final_eval.theta,
         sim_cfg,
         sim_theta,
@@ -283,6 +293,19 @@ pub fn diagnose_with(
     }
 }
 
+/// A prediction (residual domain, sample-major) of the readings as recorded: the wander taken
+/// out of them put back (`r = sim - rec` held minus the wander, so it is subtracted).
+fn with_wander(noise: &NoiseModel, n: usize, mut pred: Vec<f64>) -> Vec<f64> {
+    let w = &noise.wander.taken_out;
+    if !w.is_empty() {
+        for (i, frame) in pred.chunks_mut(n.max(1)).enumerate() {
+            let wi = w.get(i).copied().unwrap_or(0.0);
+            frame.iter_mut().for_each(|p| *p -= wi);
+        }
+    }
+    pred
+}
+
 /// The smoothness settings of the spline law tried in round 0: basis functions per node.
 pub const SPLINE_SIZES: [usize; 3] = [4, 6, 9];
 
@@ -291,7 +314,7 @@ pub const MIN_LAW_GAIN: f64 = 0.05;
 
 /// What a spline law with `m` basis functions per node adds to the power law: `m - 1` per node
 /// (the power law's gain becomes `m` coefficients), less the exponent it no longer searches.
-fn law_params_added(m: usize) -> crate::candidates::ParamCount {
+pub(crate) fn law_params_added(m: usize) -> crate::candidates::ParamCount {
     crate::candidates::ParamCount {
         global: 0,
         per_node: m - 1,
@@ -299,7 +322,7 @@ fn law_params_added(m: usize) -> crate::candidates::ParamCount {
 }
 
 /// A spline law's basis functions per node (0 for the power law).
-fn law_of(cfg: &Config) -> usize {
+pub(crate) fn law_of(cfg: &Config) -> usize {
     match cfg.law {
         Law::Spline(m) => m,
         Law::Power => 0,
@@ -323,444 +346,4 @@ fn start_config(ctx: &Context, start: &SensorModel) -> Config {
         start.material.r_floor_ohm
     };
     Config::base(start.material.exponent, floor)
-}
-
-/// The forward selection and backward pass: the current model, its held-out result, and every
-/// candidate tested so far.
-struct Selection<'a> {
-    ctx: &'a Context<'a>,
-    /// The screening view of the recording (see [`crate::screen`]).
-    screen: &'a Context<'a>,
-    ev_n: usize,
-    /// The start model's base configuration.
-    cfg0: Config,
-    cur: Config,
-    cur_cv: Cv,
-    trials: Vec<Trial>,
-    /// The effect that joined last and the held-out result of the model before it joined.
-    last: Option<(EffectKind, Cv)>,
-    /// Effects decided in round 0 with the static law (saturation), with their held-out
-    /// contribution; the backward pass does not revisit them.
-    fixed: BTreeMap<EffectKind, (Cv, Verdict)>,
-    /// The noise model, from the start model's held-out residual at rest.
-    noise: NoiseModel,
-    /// The spline size the criterion liked best in round 0 (tried again in later rounds).
-    spline_m: usize,
-    progress: &'a (dyn Fn(Progress) + Sync),
-}
-
-impl Selection<'_> {
-    /// Round 0, the static law. First the static effects the start model's law family can
-    /// express, each tested alone against it: saturation (when the start model has no floor)
-    /// and crosstalk (with a fixed load map, the row droop is a static function of the force
-    /// too). Then the monotone spline per node ([`crate::law`]) at a few smoothness settings,
-    /// held out against the current model and charged its extra parameters per node; it must
-    /// also remove at least [`MIN_LAW_GAIN`] of the held-out SSE (a law with several parameters
-    /// per node must earn them). When it joins, the static effects named before are held out
-    /// again without it, with the backward pass's rule: one the spline makes unnecessary goes.
-    fn static_law(&mut self) {
-        (self.progress)(Progress {
-            stage: "round 0: static law",
-            step: 0,
-            of: 1,
-        });
-        for e in [EffectKind::Saturation, EffectKind::Crosstalk] {
-            if applicable(self.ctx, &self.cur, e).is_err() {
-                continue;
-            }
-            let tc = Instant::now();
-            let Some((cv, v, screened)) = self.best_variant(e) else {
-                continue;
-            };
-            self.trials.push(Trial {
-                round: 0,
-                effect: e.name().to_string(),
-                verdict: v,
-                seconds: tc.elapsed().as_secs_f64(),
-                screened,
-            });
-            if v.accepted {
-                let before = self.cur_cv.clone();
-                self.join(&cv.fits);
-                let k = n_params(&self.cur, e);
-                let v = compare(self.ctx, &before, &self.cur_cv, k, &self.noise);
-                self.fixed.insert(e, (before, v));
-            }
-        }
-        if self.spline(0, &SPLINE_SIZES) {
-            self.retest_static();
-        }
-    }
-
-    /// The spline law with each of `sizes` basis functions per node against the current law;
-    /// true when the best of them joined (tested in `round`). Remembers the best size.
-    fn spline(&mut self, round: usize, sizes: &[usize]) -> bool {
-        let tc = Instant::now();
-        let ds = self.ctx.ds;
-        let mut best: Option<(Cv, Verdict)> = None;
-        for &m in sizes {
-            let cfg = Config {
-                law: Law::Spline(m),
-                ..self.cur.clone()
-            };
-            let cv = cross_validate(
-                self.ctx,
-                std::slice::from_ref(&cfg),
-                &refit_params(&cfg, ds.kappa.is_some()),
-                self.ev_n,
-            );
-            let mut v = compare(
-                self.ctx,
-                &self.cur_cv,
-                &cv,
-                law_params_added(m),
-                &self.noise,
-            );
-            v.accepted &= v.rel_gain >= MIN_LAW_GAIN;
-            if best.as_ref().is_none_or(|b| v.ic_gain > b.1.ic_gain) {
-                best = Some((cv, v));
-            }
-        }
-        let Some((cv, v)) = best else {
-            return false;
-        };
-        self.spline_m = law_of(&cv.fits[0]);
-        self.trials.push(Trial {
-            round,
-            effect: format!(
-                "static_law (monotone spline, {} per node)",
-                law_of(&cv.fits[0])
-            ),
-            verdict: v,
-            seconds: tc.elapsed().as_secs_f64(),
-            screened: false,
-        });
-        if v.accepted {
-            self.join(&cv.fits);
-        }
-        v.accepted
-    }
-
-    /// After the spline joined: each static effect named before, held out without it.
-    fn retest_static(&mut self) {
-        let has_kappa = self.ctx.ds.kappa.is_some();
-        let named: Vec<EffectKind> = self.fixed.keys().copied().collect();
-        for e in named {
-            let minus = self.cur.without(e);
-            let cv_minus = cross_validate(
-                self.ctx,
-                std::slice::from_ref(&minus),
-                &refit_params(&minus, has_kappa),
-                self.ev_n,
-            );
-            let k = n_params(&self.cur, e);
-            let v = compare(self.ctx, &cv_minus, &self.cur_cv, k, &self.noise);
-            if v.keep {
-                self.fixed.insert(e, (cv_minus, v));
-            } else {
-                self.cur = fit_all(
-                    self.ctx,
-                    std::slice::from_ref(&minus),
-                    &all_params(&minus, has_kappa),
-                    self.ev_n * 2,
-                );
-                self.cur_cv = cv_minus;
-                self.fixed.remove(&e);
-            }
-        }
-    }
-
-    /// One round of forward selection: tests every applicable effect not yet in the model and
-    /// adds the accepted one with the largest held-out gain; false when none was accepted.
-    fn round(&mut self, round: usize) -> bool {
-        // The static law again once an effect has joined: what the effect took out of the
-        // residual may have hidden the law's shape in round 0 (a drift's slow share, for one).
-        if round >= 2 && self.cur.law == Law::Power && self.spline(round, &[self.spline_m]) {
-            self.retest_static();
-        }
-        let mut best: Option<Best> = None;
-        // Saturation and crosstalk belong to the static law: decided in round 0.
-        let todo: Vec<EffectKind> = EffectKind::ALL
-            .into_iter()
-            .filter(|&e| {
-                !matches!(e, EffectKind::Saturation | EffectKind::Crosstalk)
-                    && !self.cur.has(e)
-                    && applicable(self.ctx, &self.cur, e).is_ok()
-            })
-            .collect();
-        let stage = format!("round {round}: testing effects");
-        for (step, &e) in todo.iter().enumerate() {
-            (self.progress)(Progress {
-                stage: &stage,
-                step,
-                of: todo.len(),
-            });
-            let tc = Instant::now();
-            let sp = crate::timing::span(format!("  test {}", e.name()));
-            let Some((cv, v, screened)) = self.best_variant(e) else {
-                continue;
-            };
-            drop(sp);
-            self.trials.push(Trial {
-                round,
-                effect: e.name().to_string(),
-                verdict: v,
-                seconds: tc.elapsed().as_secs_f64(),
-                screened,
-            });
-            if v.accepted && best.as_ref().is_none_or(|b| v.rel_gain > b.2.rel_gain) {
-                best = Some((e, cv, v));
-            }
-        }
-        let Some((e, cv, _)) = best else {
-            return false;
-        };
-        let before = self.cur_cv.clone();
-        let _sp = crate::timing::span(format!("join {}", e.name()));
-        self.join(&cv.fits);
-        self.last = Some((e, before));
-        true
-    }
-
-    /// Effect `e`'s variants (a latent drift's resolutions, the hysteresis forms, ...) held out
-    /// against the current model: the accepted one with the best held-out fit, or, when none
-    /// is accepted, the one the criterion likes best.
-    fn best_variant(&self, e: EffectKind) -> Option<Tested> {
-        let ds = self.ctx.ds;
-        let mut tried: Option<Tested> = None;
-        for (starts, params) in self.finalists(e) {
-            let Some(first) = starts.first() else {
-                continue;
-            };
-            let (cv, mut v, screened) = self.held_out(&starts, &params, n_params(first, e));
-            signature_check(ds, e, &self.cur_cv, &cv, &mut v);
-            // Among the variants the rule accepts, the best held-out fit; else the one the
-            // criterion likes best (for the report).
-            let better = |t: &Tested| match (v.accepted, t.1.accepted) {
-                (true, false) => true,
-                (false, true) => false,
-                (true, true) => v.rel_gain > t.1.rel_gain,
-                (false, false) => v.ic_gain > t.1.ic_gain,
-            };
-            if tried.as_ref().is_none_or(better) {
-                tried = Some((cv, v, screened));
-            }
-        }
-        tried
-    }
-
-    /// A variant held out against the current model: first in the screening view (see
-    /// [`crate::screen`]), then, when the screen leaves it worth one, the full test, whose
-    /// verdict alone can accept. True when the verdict is the screen's.
-    fn held_out(&self, starts: &[Config], params: &[Param], k: ParamCount) -> Tested {
-        let cv = cross_validate(self.screen, starts, params, self.ev_n);
-        let v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
-        if !crate::screen::worth_full_test(&v) {
-            return (cv, v, true);
-        }
-        // Each fold's search starts where the screen's ended on the same training half.
-        let [a, b] = &cv.fits;
-        let from = [std::slice::from_ref(a), std::slice::from_ref(b)];
-        let evals = crate::screen::full_evals(self.ev_n);
-        let cv = cross_validate_from(self.ctx, from, params, evals);
-        let v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
-        (cv, v, false)
-    }
-
-    /// Effect `e`'s variants worth holding out: all of them when there are two or fewer; else
-    /// the two whose best starting point on the whole recording scores best,
-    /// `T ln(SSE) + 2 k ln(T)` with `T` the time samples over ten (a crude charge for the extra
-    /// terms). The held-out test then decides between them and the criterion
-    /// charges the one it keeps; a form that a quick fit ranks third or worse rarely wins.
-    fn finalists(&self, e: EffectKind) -> Vec<Variant> {
-        let all = candidates(self.ctx, &self.cur, e);
-        if all.len() <= 2 {
-            return all;
-        }
-        let t = (self.ctx.ds.len() as f64 / 10.0).max(10.0);
-        let n = self.ctx.ds.n;
-        let mut scored: Vec<(f64, Variant)> = all
-            .into_iter()
-            .map(|(starts, params)| {
-                let Some(first) = starts.first() else {
-                    return (f64::INFINITY, (starts, params));
-                };
-                let k = n_params(first, e);
-                let sse = starts
-                    .iter()
-                    .map(|c| train_sse(self.ctx, c, &|_| true))
-                    .fold(f64::INFINITY, f64::min)
-                    .max(1e-300);
-                let score = t * sse.ln() + 2.0 * (k.global + k.per_node * n) as f64 * t.ln();
-                (score, (starts, params))
-            })
-            .collect();
-        scored.sort_by(|a, b| a.0.total_cmp(&b.0));
-        scored.into_iter().take(2).map(|(_, v)| v).collect()
-    }
-
-    /// The accepted candidate joins: all parameters are refitted on the whole recording, from
-    /// the better (on the whole recording) of the candidate's two training-fold fits, and the
-    /// refitted model is held out the way the next round's candidates will be.
-    fn join(&mut self, fold_fits: &[Config]) {
-        let ctx = self.ctx;
-        let has_kappa = ctx.ds.kappa.is_some();
-        let added = fold_fits
-            .iter()
-            .map(|c| (c, train_sse(ctx, c, &|_| true)))
-            .min_by(|a, b| a.1.total_cmp(&b.1))
-            .map_or_else(|| self.cur.clone(), |(c, _)| c.clone());
-        let joint = |start: &Config| {
-            fit_all(
-                ctx,
-                std::slice::from_ref(start),
-                &all_params(start, has_kappa),
-                self.ev_n * 2,
-            )
-        };
-        self.cur = joint(&added);
-        // Without the effect just accepted, the base fit may have driven the resistance floor
-        // far from where it belongs (to nothing, when a missing sensitivity loss looked like
-        // less saturation); the search seldom walks it back that far, and another effect then
-        // stands in for it. So when the floor has moved more than fourfold, the joint refit also
-        // starts from the start model's floor, and the better fit wins. (A second refit costs
-        // about a third of a diagnosis; a floor within a factor of four needs no rescue.)
-        let floor0 = self.cfg0.r_floor_ohm;
-        let moved = (added.r_floor_ohm / floor0.max(1e-300)).ln().abs() > 4f64.ln();
-        if added.r_floor_ohm > 0.0 && floor0 > 0.0 && moved {
-            let reset = Config {
-                r_floor_ohm: floor0,
-                ..added.clone()
-            };
-            let alt = joint(&reset);
-            if train_sse(ctx, &alt, &|_| true) < train_sse(ctx, &self.cur, &|_| true) {
-                self.cur = alt;
-            }
-        }
-        // The next round's candidates start from the jointly refitted model and refit all its
-        // parameters per fold: the model they must beat is held out the same way. (Comparing
-        // them with the accepted candidate's own cross-validation credited every one of them
-        // with what the joint refit gained.)
-        self.cur_cv = cross_validate(
-            ctx,
-            std::slice::from_ref(&self.cur),
-            &refit_params(&self.cur, has_kappa),
-            self.ev_n,
-        );
-    }
-
-    /// Backward pass: drops an effect the others made unnecessary, until every effect left
-    /// keeps its place; returns each remaining effect's held-out contribution (the reduced
-    /// model's cross-validation and the verdict). The model without the effect that joined
-    /// last is the previous round's model, whose held-out result is at hand (held out the same
-    /// way: every parameter refitted on each training fold); it is not computed again.
-    fn backward(&mut self) -> BTreeMap<EffectKind, (Cv, Verdict)> {
-        let ctx = self.ctx;
-        let ds = ctx.ds;
-        let has_kappa = ds.kappa.is_some();
-        let mut contributions: BTreeMap<EffectKind, (Cv, Verdict)> = BTreeMap::new();
-        loop {
-            contributions.clear();
-            let effects: Vec<EffectKind> = self
-                .cur
-                .effects()
-                .into_iter()
-                .filter(|e| !self.fixed.contains_key(e))
-                .collect();
-            let mut dropped = false;
-            for (step, &e) in effects.iter().enumerate() {
-                (self.progress)(Progress {
-                    stage: "backward pass",
-                    step,
-                    of: effects.len(),
-                });
-                let minus = self.cur.without(e);
-                let cv_minus = match &self.last {
-                    Some((last, cv)) if *last == e => cv.clone(),
-                    _ => cross_validate(
-                        ctx,
-                        std::slice::from_ref(&minus),
-                        &refit_params(&minus, has_kappa),
-                        self.ev_n,
-                    ),
-                };
-                let mut v = compare(
-                    ctx,
-                    &cv_minus,
-                    &self.cur_cv,
-                    n_params(&self.cur, e),
-                    &self.noise,
-                );
-                signature_check(ds, e, &cv_minus, &self.cur_cv, &mut v);
-                if !v.keep && effects.len() + self.fixed.len() >= 2 {
-                    self.cur = fit_all(
-                        ctx,
-                        std::slice::from_ref(&minus),
-                        &all_params(&minus, has_kappa),
-                        self.ev_n * 2,
-                    );
-                    self.cur_cv = cv_minus;
-                    self.last = None;
-                    dropped = true;
-                    break;
-                }
-                contributions.insert(e, (cv_minus, v));
-            }
-            if !dropped && !effects.is_empty() && self.law_redundant() {
-                dropped = true;
-            }
-            if !dropped {
-                return contributions;
-            }
-        }
-    }
-
-    /// With effects in the model, the spline law must still pay for itself against the start
-    /// model's power law (the effects may have taken what it was taken for: the static part of
-    /// a loop the base could not follow before hysteresis joined). When it does not keep its
-    /// place, the power law comes back; true then.
-    fn law_redundant(&mut self) -> bool {
-        let Law::Spline(m) = self.cur.law else {
-            return false;
-        };
-        let ctx = self.ctx;
-        let has_kappa = ctx.ds.kappa.is_some();
-        let minus = Config {
-            law: Law::Power,
-            exponent: self.cfg0.exponent,
-            ..self.cur.clone()
-        };
-        let cv_minus = cross_validate(
-            ctx,
-            std::slice::from_ref(&minus),
-            &refit_params(&minus, has_kappa),
-            self.ev_n,
-        );
-        let v = compare(
-            ctx,
-            &cv_minus,
-            &self.cur_cv,
-            law_params_added(m),
-            &self.noise,
-        );
-        if v.keep && v.rel_gain >= 0.5 * MIN_LAW_GAIN {
-            return false;
-        }
-        self.trials.push(Trial {
-            round: 0,
-            effect: format!("static_law (back to the power law from the spline, {m} per node)"),
-            verdict: v,
-            seconds: 0.0,
-            screened: false,
-        });
-        self.cur = fit_all(
-            ctx,
-            std::slice::from_ref(&minus),
-            &all_params(&minus, has_kappa),
-            self.ev_n * 2,
-        );
-        self.cur_cv = cv_minus;
-        self.last = None;
-        true
-    }
 }

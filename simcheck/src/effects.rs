@@ -119,6 +119,11 @@ pub struct Config {
     /// Curvature sensitivity as one factor per trial (any loss, monotone or not, of each
     /// mounting's sensitivity), fitted with the nodes; without a curvature column.
     pub curv_trials: Option<Vec<f64>>,
+    /// With `Some(n)` (the nodes), `curv_trials` holds one factor per trial and node (trial
+    /// `j`, node `k` at `j n + k`): each mounting's sensitivity lost or gained node by node, as
+    /// when the contact's footprint moves with the mounting and every node's share of the load
+    /// changes.
+    pub curv_per_node: Option<usize>,
     pub curv_base: bool,
     /// Row crosstalk: switch + thread resistance (ohm).
     pub crosstalk: Option<f64>,
@@ -153,6 +158,7 @@ impl Config {
             curv_sens: None,
             curv_linear: false,
             curv_trials: None,
+            curv_per_node: None,
             curv_base: false,
             crosstalk: None,
             scan_skew: None,
@@ -182,6 +188,7 @@ impl Config {
             EffectKind::CurvatureSensitivity => {
                 c.curv_sens = None;
                 c.curv_trials = None;
+                c.curv_per_node = None;
             }
             EffectKind::Saturation => {
                 c.saturation = false;
@@ -209,6 +216,80 @@ impl Config {
             EffectKind::ScanSkew => c.scan_skew = None,
         }
         c
+    }
+
+    /// This configuration with effect `e`'s fields (its form and parameters) taken from
+    /// `from`: a fit of `e` from an earlier round, as a starting point on the current model.
+    pub fn with_effect_of(&self, e: EffectKind, from: &Config) -> Config {
+        let mut c = self.clone();
+        match e {
+            EffectKind::CurvatureBaseline => c.curv_base = from.curv_base,
+            EffectKind::CurvatureSensitivity => {
+                c.curv_sens = from.curv_sens;
+                c.curv_linear = from.curv_linear;
+                c.curv_trials.clone_from(&from.curv_trials);
+                c.curv_per_node = from.curv_per_node;
+            }
+            EffectKind::Saturation => {
+                c.saturation = from.saturation;
+                c.r_floor_ohm = from.r_floor_ohm;
+            }
+            EffectKind::Creep => {
+                c.creep.clone_from(&from.creep);
+                c.creep_under_load = from.creep_under_load;
+            }
+            EffectKind::Hysteresis => {
+                c.hysteresis = from.hysteresis;
+                c.hyst_mix = from.hyst_mix;
+                c.hyst_share = from.hyst_share;
+                c.hyst_bouc_wen = from.hyst_bouc_wen;
+                c.hyst_bw_n = from.hyst_bw_n;
+                c.hyst_bw_asym = from.hyst_bw_asym;
+                c.hyst_preisach = from.hyst_preisach;
+                c.preis_mu = from.preis_mu;
+                c.preis_sigma = from.preis_sigma;
+            }
+            EffectKind::ThermalDrift => {
+                c.thermal.clone_from(&from.thermal);
+                c.thermal_gain_only = from.thermal_gain_only;
+            }
+            EffectKind::Crosstalk => c.crosstalk = from.crosstalk,
+            EffectKind::ScanSkew => {
+                c.scan_skew = from.scan_skew;
+                c.scan_settle = from.scan_settle;
+            }
+        }
+        c
+    }
+
+    /// Whether `self` and `other` hold effect `e` in the same form (the fields the search does
+    /// not move: creep's terms and kind, the hysteresis form, the drift's kind and knots).
+    pub fn same_form(&self, e: EffectKind, other: &Config) -> bool {
+        match e {
+            EffectKind::Creep => {
+                self.creep.as_ref().map(Vec::len) == other.creep.as_ref().map(Vec::len)
+                    && self.creep_under_load == other.creep_under_load
+            }
+            EffectKind::Hysteresis => {
+                self.hyst_share.is_some() == other.hyst_share.is_some()
+                    && self.hyst_bouc_wen == other.hyst_bouc_wen
+                    && self.hyst_preisach == other.hyst_preisach
+            }
+            EffectKind::ThermalDrift => {
+                let knots = |c: &Config| match &c.thermal {
+                    Some(Thermal::Latent { knots_s, .. }) => Some(knots_s.len()),
+                    _ => None,
+                };
+                self.thermal.is_some() == other.thermal.is_some()
+                    && knots(self) == knots(other)
+                    && self.thermal_gain_only == other.thermal_gain_only
+            }
+            EffectKind::CurvatureSensitivity => {
+                self.curv_trials.is_some() == other.curv_trials.is_some()
+                    && self.curv_per_node == other.curv_per_node
+            }
+            _ => true,
+        }
     }
 
     pub fn effects(&self) -> Vec<EffectKind> {

@@ -94,7 +94,11 @@ pub fn effect_params(
                 let lo = g.iter().cloned().fold(f64::INFINITY, f64::min);
                 let hi = g.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
                 p.insert("per_trial".into(), 1.0);
-                p.insert("trials".into(), g.len() as f64);
+                let nn = cfg.curv_per_node.unwrap_or(1).max(1);
+                p.insert("trials".into(), (g.len() / nn) as f64);
+                if cfg.curv_per_node.is_some() {
+                    p.insert("per_node".into(), 1.0);
+                }
                 p.insert("sensitivity_min_over_max".into(), lo / hi.max(1e-12));
             }
             if let Some(v) = cfg.curv_sens {

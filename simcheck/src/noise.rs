@@ -18,6 +18,7 @@
 use serde::Serialize;
 
 use crate::context::Context;
+use crate::wander::CommonWander;
 
 /// One node's (or the common mode's) noise: variances and per-sample correlations.
 #[derive(Debug, Clone, Copy, Serialize, Default)]
@@ -51,6 +52,9 @@ pub struct NoiseModel {
     pub rest_samples: usize,
     /// Readings taken out as one-frame spikes before the fit.
     pub spikes_rejected: usize,
+    /// The wander every node shares, estimated from the nodes at rest and taken out of the
+    /// held-out residuals before models are compared (see [`crate::wander`]).
+    pub wander: CommonWander,
 }
 
 /// Autocovariances at lags `lags` of `x` over the runs of consecutive samples where `keep`
@@ -214,7 +218,9 @@ impl NoiseModel {
         let nodes = capped(nodes);
         let common = Parts::default();
         let rho = nodes.iter().map(|p| p.rho_slow).sum::<f64>() / n.max(1) as f64;
+        let own = nodes.iter().map(Parts::total).sum::<f64>() / n.max(1) as f64;
         NoiseModel {
+            wander: CommonWander::estimate(ctx, resid, own),
             wander_tau_s: if rho > 0.0 && rho < 1.0 {
                 -ds.dt() / rho.ln()
             } else {
@@ -300,12 +306,27 @@ impl NoiseModel {
             Parts::default()
         };
         NoiseModel {
+            wander: CommonWander::default(),
             nodes,
             common,
             wander_tau_s: 0.0,
             rest_samples: 0,
             spikes_rejected: 0,
         }
+    }
+
+    /// The noise variance of `sum d r` for a residual `r` of pure noise: `d' C d`, with each
+    /// node's own parts and the common wander ([`crate::wander`]) on the sum over nodes (`dt`:
+    /// the sample interval).
+    pub fn quadratic(&self, d: &[f64], n: usize, dt: f64) -> f64 {
+        let dd: f64 = d.iter().map(|v| v * v).sum();
+        let own = self.seen_by(d, n) * dd;
+        let w = &self.wander;
+        if w.variance <= 0.0 || n == 0 {
+            return own;
+        }
+        let sum: Vec<f64> = d.chunks(n).map(|c| c.iter().sum()).collect();
+        own + w.variance * ar_quadratic(&sum, (-dt / w.tau_s.max(1e-9)).exp())
     }
 
     /// As [`NoiseModel::seen_by`] for node `k` of the change alone (its whole wander counted
@@ -323,6 +344,25 @@ impl NoiseModel {
             + p.fast * ar_quadratic(&col, p.rho_fast)
             + p.slow * ar_quadratic(&col, p.rho_slow))
             / dd
+    }
+
+    /// White noise of variance `var` on each of `n` nodes, nothing else (for tests).
+    #[cfg(test)]
+    pub(crate) fn white(n: usize, var: f64) -> NoiseModel {
+        NoiseModel {
+            nodes: vec![
+                Parts {
+                    white: var,
+                    ..Parts::default()
+                };
+                n
+            ],
+            common: Parts::default(),
+            wander_tau_s: 0.0,
+            rest_samples: 0,
+            spikes_rejected: 0,
+            wander: CommonWander::default(),
+        }
     }
 
     /// Node `k`'s whole noise (standard deviation).
@@ -411,6 +451,7 @@ mod tests {
             wander_tau_s: 10.0,
             rest_samples: 0,
             spikes_rejected: 0,
+            wander: CommonWander::default(),
         };
         let fast: Vec<f64> = (0..5000)
             .map(|i| if i % 2 == 0 { 1.0 } else { -1.0 })

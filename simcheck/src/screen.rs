@@ -49,7 +49,10 @@ mod tests {
             keep: false,
             ramp_betas: None,
             loop_share: None,
+            loop_removed: None,
             gain_betas: None,
+            weighted_t: 0.0,
+            change_blocks: 0.0,
         };
         assert!(!worth_full_test(&v(-0.02)));
         assert!(!worth_full_test(&v(0.002)));

@@ -4,6 +4,11 @@ use crate::data::{Dataset, ReadoutMap};
 
 /// One node, presses with independent levels and ramp durations (0.2-2 s) at 100 Hz.
 pub fn presses() -> Dataset {
+    presses_with_rest(1.0)
+}
+
+/// As [`presses`], with `rest_s` seconds of no load before each press.
+pub fn presses_with_rest(rest_s: f64) -> Dataset {
     let mut t = Vec::new();
     let mut force = Vec::new();
     let mut now = 0.0;
@@ -11,7 +16,7 @@ pub fn presses() -> Dataset {
         let level = 2.0 + (p * 7 % 13) as f64;
         let ramp = 0.2 + 1.8 * ((p * 5 % 11) as f64 / 10.0);
         for (dur, from, to) in [
-            (1.0, 0.0, 0.0),
+            (rest_s, 0.0, 0.0),
             (ramp, 0.0, level),
             (1.0, level, level),
             (ramp, level, 0.0),

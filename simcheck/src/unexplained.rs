@@ -21,7 +21,8 @@ pub struct Unexplained {
 /// base model's excess over noise there (what is left of a named effect whose true form differs
 /// from the tool's is not "unexplained"). Each node's noise is the noise model's whole noise
 /// at rest (white, fast and slow parts; [`NoiseModel::floor`]) or the white floor from its
-/// sample-to-sample differences, whichever is larger: a wander is noise, not structure.
+/// sample-to-sample differences, whichever is larger: a wander is noise, not structure (and the
+/// wander every node shares was taken out of the readings, see [`crate::wander`]).
 pub fn find_unexplained(
     ctx: &Context,
     base_cv: &Cv,
@@ -38,7 +39,8 @@ pub fn find_unexplained(
         }
         v
     };
-    let stats = with_model(node_stats(ctx, &cv.resid));
+    let resid = &cv.resid;
+    let stats = with_model(node_stats(ctx, resid));
     let base_stats = with_model(node_stats(ctx, &base_cv.resid));
     let excess = |s: &crate::locate::NodeStat| (s.rms * s.rms - s.noise * s.noise).max(0.0);
     let mostly_left = |k: usize| excess(&stats[k]) > 0.25 * excess(&base_stats[k]);
@@ -67,7 +69,7 @@ pub fn find_unexplained(
             .map(|s| s.node)
             .collect();
         for &k in &bad {
-            let sp = spans(ctx, &cv.resid, &[k], 3.0);
+            let sp = spans(ctx, resid, &[k], 3.0);
             let (t0, t1) = sp
                 .first()
                 .map_or((ds.t[0], ds.t[ds.len() - 1]), |s| (s.t_s[0], s.t_s[1]));
@@ -99,7 +101,7 @@ pub fn find_unexplained(
     let was: f64 = base_stats.iter().map(excess).sum();
     if median > limit && left > 0.25 * was {
         let all: Vec<usize> = (0..ds.n).collect();
-        let sp = spans(ctx, &cv.resid, &all, 2.0);
+        let sp = spans(ctx, resid, &all, 2.0);
         let (t0, t1) = sp
             .first()
             .map_or((ds.t[0], ds.t[ds.len() - 1]), |s| (s.t_s[0], s.t_s[1]));

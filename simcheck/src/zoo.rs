@@ -9,9 +9,11 @@
 //! | `zoo-log` | logarithmic | 12-bit divider, falls | white 2, per-node wander, spikes | log-time under load, no recovery | Bouc-Wen n = 1, beta = 2 gamma | linear, +0.25 %/K, one lag |
 //! | `zoo-sat` | soft saturation, per-node shape | 10-bit amplifier | white 1.4, common wander | three Prony terms, 2-200 s | Preisach relays | quadratic in T, two lags |
 //! | `zoo-pow` | power, per-node exponent | 10-bit inverting amplifier | white 0.5, per-node wander | power of the time under load | five plays, virgin start | exponential, on gain only, one lag |
+//! | `zoo-amp` | power 1.2, per-node exponent, floor 300 ohm | 10-bit amplifier | white 1, common wander 2 (40 s) + per-node 0.7 (8 s), spikes | on the conductance, growing with the load's level (four relaxations, 0.5-100 s) | on the conductance: a Dahl state multiplies the force term | linear -0.45 %/K, one lag (20 s); a warming hand (+12 K, swing 4 K) |
 //!
 //! Curvature (the unlabelled case: five mountings, a trial column, no curvature column) uses
-//! the preset's sensitivity and baseline forms; the load map is fixed per family. The effects
+//! the preset's sensitivity and baseline forms; the load map is fixed per family, except
+//! zoo-amp's, whose contact spot moves with every mounting. The effects
 //! are sized to move the loaded readings by about the noise's standard deviation or more, as
 //! the reference world's do (first drafts of zoo-sat's thermal law and zoo-pow's creep and
 //! thermal law moved them by less than the wander, and were enlarged before any held-out seed
@@ -36,14 +38,18 @@ pub enum Family {
     ZooLog,
     ZooSat,
     ZooPow,
+    /// Built to resemble the world the tool is judged on (the description): the
+    /// paper's amplifier board, per-node laws, a strong common-mode wander.
+    ZooAmp,
 }
 
 impl Family {
-    pub const ALL: [Family; 4] = [
+    pub const ALL: [Family; 5] = [
         Family::Reference,
         Family::ZooLog,
         Family::ZooSat,
         Family::ZooPow,
+        Family::ZooAmp,
     ];
 
     pub fn name(self) -> &'static str {
@@ -52,6 +58,7 @@ impl Family {
             Family::ZooLog => "zoo-log",
             Family::ZooSat => "zoo-sat",
             Family::ZooPow => "zoo-pow",
+            Family::ZooAmp => "zoo-amp",
         }
     }
 
@@ -106,6 +113,36 @@ fn load_map(f: Family) -> [f64; N] {
     }
 }
 
+/// zoo-amp's load map: a round contact spot (sd 0.8 node pitches) centred `(dx, dy)` pitches
+/// off the array's centre, each node carrying the spot's density at its centre (normalised).
+fn amp_map(dx: f64, dy: f64) -> Vec<f64> {
+    let raw: Vec<f64> = (0..N)
+        .map(|k| {
+            let x = (k % COLS) as f64 - 1.5 - dx;
+            let y = (k / COLS) as f64 - 1.5 - dy;
+            (-(x * x + y * y) / (2.0 * 0.8 * 0.8)).exp()
+        })
+        .collect();
+    let total: f64 = raw.iter().sum();
+    raw.iter().map(|v| v / total).collect()
+}
+
+/// Each trial's load map (shares of the total force). Fixed per family, except zoo-amp's,
+/// whose contact spot lands `N(0, 0.3)` pitches off centre along each axis anew at every
+/// mounting (trial), as when the sensor is mounted on another fixture: the curvature case's
+/// five mountings each load the nodes in other shares (drawn from a stream of their own).
+fn load_maps(fam: Family, seed: u64, trials: usize) -> Vec<Vec<f64>> {
+    if fam == Family::ZooAmp {
+        let mut rng = Rng::new(seed, 191);
+        return (0..trials)
+            .map(|_| amp_map(0.3 * rng.normal(), 0.3 * rng.normal()))
+            .collect();
+    }
+    let raw = load_map(fam);
+    let total: f64 = raw.iter().sum();
+    vec![raw.iter().map(|v| v / total).collect(); trials]
+}
+
 /// One node's dynamic state.
 #[derive(Clone, Default)]
 struct NodeState {
@@ -115,6 +152,10 @@ struct NodeState {
     f_prev: f64,
     plays: [f64; 5],
     relays: Vec<bool>,
+    /// zoo-amp: the creep states, the Dahl hysteresis state and its last input.
+    amp_creep: [f64; 4],
+    dahl: f64,
+    u_prev: f64,
 }
 
 /// The family's creep on local load `f` at time `t` (`on` = the total force is on).
@@ -144,6 +185,37 @@ fn creep(fam: Family, st: &mut NodeState, f: f64, t: f64, dt: f64, on: bool) -> 
         // A power of the time under load.
         _ => f * (1.0 + 0.05 * t_on.powf(0.3)),
     }
+}
+
+/// zoo-amp's creep, a factor on the force term (the conductance the load adds): four
+/// relaxations of the node's load relative to its largest (`scale`), so a held load's
+/// conductance grows by up to 12 % at the node's largest load and less at smaller ones, and the
+/// creep recovers after unloading with the same time constants.
+fn amp_creep(st: &mut NodeState, f: f64, scale: f64, dt: f64) -> f64 {
+    let u = f / scale.max(1e-9);
+    let mut extra = 0.0;
+    for (s, (c, tau)) in
+        st.amp_creep
+            .iter_mut()
+            .zip([(0.02, 0.5), (0.03, 4.0), (0.03, 25.0), (0.04, 100.0)])
+    {
+        *s += (u - *s) * (1.0 - (-dt / tau).exp());
+        extra += c * *s;
+    }
+    1.0 + extra
+}
+
+/// zoo-amp's hysteresis, a factor on the force term: a Dahl state `z` in -1..=1 on the node's
+/// load relative to its largest, `dz = (du / w) (1 - z sign(du))` (rate-independent, an
+/// exponential approach to saturation over a tenth of the range), starting at 0; the force
+/// term is `1 - 0.05 z` (the loading branch reads lower, by up to a tenth of the signal).
+fn amp_hysteresis(st: &mut NodeState, f: f64, scale: f64) -> f64 {
+    let u = f / scale.max(1e-9);
+    let du = u - st.u_prev;
+    st.u_prev = u;
+    let w = 0.1;
+    st.dahl = (st.dahl + du / w * (1.0 - st.dahl * du.signum())).clamp(-1.0, 1.0);
+    1.0 - 0.05 * st.dahl
 }
 
 /// The family's hysteresis on local load `f` (`scale`: the node's largest local load).
@@ -240,6 +312,11 @@ fn thermal(fam: Family, lag: &mut [f64; 2], amb: f64, dt: f64) -> (f64, f64) {
             let m = 1.0 - 0.006 * d - 0.0003 * d * d;
             (m, m)
         }
+        Family::ZooAmp => {
+            lag[0] += (amb - lag[0]) * (1.0 - (-dt / 20.0f64).exp());
+            let m = 1.0 - 0.0045 * (lag[0] - 25.0);
+            (m, m)
+        }
         _ => {
             lag[0] += (amb - lag[0]) * (1.0 - (-dt / 60.0f64).exp());
             (1.0, (-0.01 * (lag[0] - 25.0)).exp())
@@ -255,9 +332,7 @@ pub fn generate(fam: Family, case: Case, seed: u64, duration_s: f64) -> Recordin
     };
     let mut rng = Rng::new(seed, 91 + fam as u64);
     let sched = schedule(&mut rng, duration_s, false);
-    let raw = load_map(fam);
-    let total: f64 = raw.iter().sum();
-    let w: Vec<f64> = raw.iter().map(|v| v / total).collect();
+    let maps = load_maps(fam, seed, 5);
     let fmax_sched = sched.iter().map(|p| p.4).fold(0.0, f64::max);
     let m = &model.material;
     let g0: Vec<f64> = (0..N)
@@ -285,9 +360,16 @@ pub fn generate(fam: Family, case: Case, seed: u64, duration_s: f64) -> Recordin
     let kappas = [0.0, 60.0, 20.0, 80.0, 40.0];
     let thermal_on = matches!(case, Case::ThermalRecorded | Case::CreepThermal);
     let creep_on = matches!(case, Case::Creep | Case::CreepThermal);
+    let tau = 2.0 * std::f64::consts::PI;
     let temp_of = |t: f64| -> f64 {
-        match case {
-            Case::Distractor => 24.0 + 3.0 * (2.0 * std::f64::consts::PI * t / 170.0).sin(),
+        match (fam, case) {
+            // zoo-amp: a hand warming the sensor, by 12 K over the recording with a swing of
+            // 4 K; its distractor warms by 10 K with a swing of another period.
+            (Family::ZooAmp, Case::Distractor) => {
+                25.0 + 10.0 * (t / duration_s) + 4.0 * (tau * t / 130.0).sin()
+            }
+            (Family::ZooAmp, _) => 25.0 + 12.0 * (t / duration_s) + 4.0 * (tau * t / 110.0).sin(),
+            (_, Case::Distractor) => 24.0 + 3.0 * (2.0 * std::f64::consts::PI * t / 170.0).sin(),
             _ => {
                 25.0 + 6.0 * (t / duration_s) + 3.0 * (2.0 * std::f64::consts::PI * t / 140.0).sin()
             }
@@ -306,6 +388,7 @@ pub fn generate(fam: Family, case: Case, seed: u64, duration_s: f64) -> Recordin
         let t = i as f64 * dt;
         let trial = if curv_case { (i * 5 / len).min(4) } else { 0 };
         let kappa = if curv_case { kappas[trial] } else { 0.0 };
+        let w = &maps[trial];
         let amb = temp_of(t);
         let (th_base, th_gain) = if thermal_on {
             thermal(fam, &mut lag, amb, dt)
@@ -320,13 +403,24 @@ pub fn generate(fam: Family, case: Case, seed: u64, duration_s: f64) -> Recordin
         let extra = layers.next(dt).map(<[f64]>::to_vec);
         for k in 0..N {
             let mut f = f_total * w[k];
+            // zoo-amp's creep and hysteresis act on the conductance, the others' on the load.
+            let mut factor = 1.0;
             if case == Case::Hysteresis {
-                f = hysteresis(fam, &mut nodes[k], f, fmax_sched * w[k], &relays);
+                if fam == Family::ZooAmp {
+                    factor *= amp_hysteresis(&mut nodes[k], f, fmax_sched * w[k]);
+                } else {
+                    f = hysteresis(fam, &mut nodes[k], f, fmax_sched * w[k], &relays);
+                }
             }
             if creep_on {
-                f = creep(fam, &mut nodes[k], f, t, dt, on);
+                if fam == Family::ZooAmp {
+                    factor *= amp_creep(&mut nodes[k], f, fmax_sched * w[k], dt);
+                } else {
+                    f = creep(fam, &mut nodes[k], f, t, dt, on);
+                }
             }
             let (amp, term) = force_term(m, shape[k], f.max(0.0));
+            let term = term * factor;
             let base = g0[k] * baseline_factor(c, kappa, across[k]);
             let mut g =
                 base * th_base + gain[k] * amp * 1e-6 * term * sensitivity(c, kappa) * th_gain;
@@ -371,7 +465,12 @@ mod tests {
 
     #[test]
     fn each_family_reads_in_range_and_moves_with_force() {
-        for fam in [Family::ZooLog, Family::ZooSat, Family::ZooPow] {
+        for fam in [
+            Family::ZooLog,
+            Family::ZooSat,
+            Family::ZooPow,
+            Family::ZooAmp,
+        ] {
             let rec = generate(fam, Case::Null, 3, 60.0);
             let model = fam.preset().expect("preset");
             let top = model.readout.max_code();

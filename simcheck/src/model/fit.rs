@@ -295,7 +295,7 @@ impl NodeFit<'_> {
                     continue;
                 }
                 let q = self.terms.law(th, k, i, jj);
-                let rest = self.terms.z(th, k, i, jj) - self.terms.sens[i] * q;
+                let rest = self.terms.z(th, k, i, jj) - self.terms.s(k, i) * q;
                 num[j] += w * q * (self.obs.g2[idx] / mi - rest);
                 den[j] += w * q * q;
             }
@@ -314,6 +314,51 @@ impl NodeFit<'_> {
         let mean = g.iter().sum::<f64>() / trials.max(1) as f64;
         if mean > 0.0 {
             g.iter_mut().for_each(|v| *v /= mean);
+        }
+        g
+    }
+
+    /// Each node's sensitivity factor per trial (trial `j`, node `k` at `j n + k`) given the
+    /// nodes' parameters, in closed form as [`NodeFit::trial_gains`] but node by node, each
+    /// node's factors normalised to a mean of 1 over the trials it is loaded in (its gain
+    /// carries its scale).
+    pub(super) fn node_trial_gains(
+        &self,
+        theta: &[Vec<f64>],
+        m: &[f64],
+        trials: usize,
+    ) -> Vec<f64> {
+        let ds = self.ctx.ds;
+        let n = ds.n;
+        let mut num = vec![0.0; trials * n];
+        let mut den = vec![0.0; trials * n];
+        for (jj, &i) in self.fit_idx.iter().enumerate() {
+            let j = ds.trial[i];
+            let mi = m[i];
+            for (k, th) in theta.iter().enumerate().take(n) {
+                let idx = k * self.fit_idx.len() + jj;
+                let w = self.obs.wgt[idx] * mi * mi;
+                if w == 0.0 {
+                    continue;
+                }
+                // The force term before the node's own factor, and what the rest contributes.
+                let q = self.terms.law(th, k, i, jj) * self.terms.sens[i];
+                let own = self.terms.node_sens[j * n + k];
+                let rest = self.terms.z(th, k, i, jj) - own * q;
+                num[j * n + k] += w * q * (self.obs.g2[idx] / mi - rest);
+                den[j * n + k] += w * q * q;
+            }
+        }
+        let mut g = vec![1.0; trials * n];
+        for k in 0..n {
+            let seen: Vec<usize> = (0..trials).filter(|&j| den[j * n + k] > 0.0).collect();
+            for &j in &seen {
+                g[j * n + k] = (num[j * n + k] / den[j * n + k]).clamp(0.05, 20.0);
+            }
+            let mean = seen.iter().map(|&j| g[j * n + k]).sum::<f64>() / seen.len().max(1) as f64;
+            if mean > 0.0 {
+                seen.iter().for_each(|&j| g[j * n + k] /= mean);
+            }
         }
         g
     }

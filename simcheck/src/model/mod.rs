@@ -107,8 +107,15 @@ fn evaluate_inner(
         if let Some((knots, values)) = &latent {
             apply_latent(ctx, knots, values, &mut m);
         }
-        if let Some(g) = &gains {
-            terms.sens = ds.trial.iter().map(|&j| g[j]).collect();
+        match (&gains, cfg.curv_per_node) {
+            (Some(g), Some(_)) => {
+                terms.node_sens.clone_from(g);
+                if terms.trials.is_empty() {
+                    terms.trials.clone_from(&ds.trial);
+                }
+            }
+            (Some(g), None) => terms.sens = ds.trial.iter().map(|&j| g[j]).collect(),
+            _ => {}
         }
         let fit = NodeFit {
             ctx,
@@ -131,7 +138,10 @@ fn evaluate_inner(
             *values = fit.latent(knots, &theta);
         }
         if let Some(g) = &mut gains {
-            *g = fit.trial_gains(&theta, &m, g.len());
+            *g = match cfg.curv_per_node {
+                Some(nn) => fit.node_trial_gains(&theta, &m, g.len() / nn.max(1)),
+                None => fit.trial_gains(&theta, &m, g.len()),
+            };
         }
     }
     let looked: &[usize] = if want_pred { &[] } else { &fit_idx };
@@ -323,5 +333,61 @@ impl Layout {
     /// Index of the static law's first parameter.
     pub fn law_start(&self) -> usize {
         self.n_int + usize::from(self.curv_k) + usize::from(self.hyst)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_node_gets_its_own_sensitivity_in_each_trial() {
+        // Two nodes, three mountings: node 0's sensitivity falls 0.8x in trial 1 and node
+        // 1's rises 1.25x in trial 2 (a contact spot that moved), read through the amplifier.
+        let mut ds = crate::testdata::presses();
+        let len = ds.len();
+        ds.n = 2;
+        ds.cols = 2;
+        ds.trial = (0..len).map(|i| i * 3 / len).collect();
+        ds.n_trials = 3;
+        ds.trial_recorded = true;
+        ds.map = crate::data::ReadoutMap::from_readout(&taxel_sim::SensorModel::default().readout);
+        let factor = |j: usize, k: usize| match (j, k) {
+            (1, 0) => 0.8,
+            (2, 1) => 1.25,
+            _ => 1.0,
+        };
+        ds.y = (0..len * 2)
+            .map(|idx| {
+                let (i, k) = (idx / 2, idx % 2);
+                let g = 20e-6 + 40e-6 * (1.0 + k as f64) * factor(ds.trial[i], k) * ds.force[i];
+                ds.map.from_g(g)
+            })
+            .collect();
+        let ctx = Context::new(&ds);
+        let cfg = Config {
+            curv_trials: Some(vec![1.0; 6]),
+            curv_per_node: Some(2),
+            ..Config::base(1.0, 0.0)
+        };
+        let ev = evaluate(&ctx, &cfg, &|_| true);
+        let g = ev.trial_gains.expect("per-trial gains");
+        // Each node's factors relative to its first trial.
+        let rel = |j: usize, k: usize| g[j * 2 + k] / g[k];
+        for (j, k) in [(1, 0), (2, 0), (1, 1), (2, 1)] {
+            assert!(
+                (rel(j, k) - factor(j, k)).abs() < 0.02,
+                "trial {j} node {k}: {} {g:?}",
+                rel(j, k)
+            );
+        }
+        let fit: f64 = ev
+            .pred
+            .iter()
+            .zip(&ds.y)
+            .map(|(p, y)| (p - ds.map.dom(*y)).powi(2))
+            .sum::<f64>()
+            / (2 * len) as f64;
+        assert!(fit < 0.01, "rms {}", fit.sqrt());
     }
 }

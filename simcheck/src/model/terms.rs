@@ -17,6 +17,11 @@ pub(super) struct Terms {
     loads: Loads,
     pub(super) basis: Option<Basis>,
     pub(super) sens: Vec<f64>,
+    /// Per-trial factors of each node's sensitivity (trial `j`, node `k` at `j n + k`; empty:
+    /// none), with each sample's trial and the number of nodes.
+    pub(super) node_sens: Vec<f64>,
+    pub(super) trials: Vec<usize>,
+    n: usize,
     hyst: Vec<f64>,
     curv_x: Vec<f64>,
 }
@@ -56,6 +61,9 @@ impl Terms {
             loads,
             basis,
             sens,
+            node_sens: Vec::new(),
+            trials: Vec::new(),
+            n: ds.n,
             hyst,
             curv_x,
         }
@@ -64,7 +72,16 @@ impl Terms {
     /// Whether every node's local regressors are the same (one load series for every node,
     /// no per-node scan lag): the nodes differ in their parameters only.
     pub(super) fn node_independent(&self) -> bool {
-        self.loads.shared()
+        self.loads.shared() && self.node_sens.is_empty()
+    }
+
+    /// Node `k`'s sensitivity factor at sample `i`.
+    pub(super) fn s(&self, k: usize, i: usize) -> f64 {
+        if self.node_sens.is_empty() {
+            self.sens[i]
+        } else {
+            self.sens[i] * self.node_sens[self.trials[i] * self.n + k]
+        }
     }
 
     /// The number of local values (see [`Terms::local`]).
@@ -81,21 +98,22 @@ impl Terms {
         if self.lay.curv_k {
             v[self.lay.n_int] = self.curv_x[i];
         }
+        let sk = self.s(k, i);
         if self.lay.hyst {
-            v[self.lay.hyst_index()] = self.sens[i] * self.hyst[i];
+            v[self.lay.hyst_index()] = sk * self.hyst[i];
         }
         let o = self.lay.law_start();
         let l = self.loads.at(k, i, j);
         match &self.basis {
             None => {
-                v[o] = self.sens[i] * l;
+                v[o] = sk * l;
                 0
             }
             Some(b) => {
                 let (s, a, c) = b.local(l);
-                v[o] = self.sens[i];
-                v[o + 1] = self.sens[i] * a;
-                v[o + 2] = self.sens[i] * c;
+                v[o] = sk;
+                v[o + 1] = sk * a;
+                v[o + 2] = sk * c;
                 s
             }
         }
@@ -128,8 +146,9 @@ impl Terms {
     /// Node `k`'s conductance before the thermal factor at sample `i` (the `j`-th the fit looks
     /// at), with parameters `th`.
     pub(super) fn z(&self, th: &[f64], k: usize, i: usize, j: usize) -> f64 {
+        let sk = self.s(k, i);
         let hv = if self.lay.hyst {
-            self.sens[i] * self.hyst[i]
+            sk * self.hyst[i]
         } else {
             0.0
         };
@@ -143,8 +162,8 @@ impl Terms {
             z += th[self.lay.hyst_index()] * hv;
         }
         match &self.basis {
-            None => z + th[self.lay.law_start()] * (self.sens[i] * l),
-            Some(b) => z + self.sens[i] * b.value(&th[self.lay.law_start()..], l),
+            None => z + th[self.lay.law_start()] * (sk * l),
+            Some(b) => z + sk * b.value(&th[self.lay.law_start()..], l),
         }
     }
 }
@@ -161,6 +180,10 @@ fn sensitivity(ctx: &Context, cfg: &Config) -> Vec<f64> {
         }
     };
     if let Some(g) = &cfg.curv_trials {
+        if cfg.curv_per_node.is_some() {
+            // Per trial and node: the factors act through `Terms::node_sens`.
+            return vec![1.0; ds.len()];
+        }
         return ds.trial.iter().map(|&j| g[j]).collect();
     }
     match (cfg.curv_sens, &ds.kappa) {

@@ -190,6 +190,24 @@ fn candidates(s: &mut String, d: &Diagnosis) {
             t.seconds,
         );
     }
+    if !d.backward.is_empty() {
+        let _ = writeln!(s, "\n### Backward pass (each effect held out without it)\n\n| effect | held-out RMSE without -> with | SSE gain | block t | signed-rank z | information gain | kept |\n|---|---|---|---|---|---|---|");
+        for t in &d.backward {
+            let v = &t.verdict;
+            let _ = writeln!(
+                s,
+                "| {} | {:.4} -> {:.4} | {:.1} % | {:.1} | {:.1} | {:.0} | {} |",
+                t.effect,
+                v.rmse_before,
+                v.rmse_after,
+                100.0 * v.rel_gain,
+                v.block_t,
+                v.rank_z,
+                v.ic_gain,
+                if v.keep { "yes" } else { "no" },
+            );
+        }
+    }
     for (e, why) in &d.skipped {
         let _ = writeln!(s, "\n- {e} not testable here: {why}");
     }

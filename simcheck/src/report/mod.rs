@@ -120,6 +120,7 @@ fn report_json(
         "final": base_json(&d.final_cfg),
         "sim_law": base_json(&d.sim_cfg),
         "candidates": d.trials,
+        "backward": d.backward,
         "skipped": d.skipped.iter().map(|(e, w)| json!({"effect": e, "why": w})).collect::<Vec<_>>(),
         "findings_base": d.base_findings,
         "findings_final": d.final_findings,

@@ -152,6 +152,14 @@ fn curvature(
         }
         _ => c.sensitivity_kappa_s_m1 = 1e9,
     }
+    if cfg.curv_trials.is_some() {
+        let what = if cfg.curv_per_node.is_some() {
+            "one factor per trial and node (the contact's load map moves with the mounting)"
+        } else {
+            "one factor per trial"
+        };
+        notes.push(format!("curvature_sensitivity was found as {what}: SIM.toml cannot tie it to a curvature (sensitivity_kappa_s_m1 left off)"));
+    }
     if cfg.curv_base && ds.kappa.is_some() {
         let slopes: Vec<f64> = theta
             .iter()
