@@ -5,8 +5,9 @@
 //! it wakes. At 64 sensors x 1 kHz that replaces 64 000 notifications and as many wake-up reads
 //! per second and hop by about 9 000.
 //! When the upstream does not notify the group (started without it, or a mix of sources) the
-//! loop polls every millisecond, so nothing is lost and a sample waits at most about that long;
-//! it says so once.
+//! loop still polls on a timer (1 ms after a poll that found samples, doubling after each empty
+//! one up to the tick), so nothing is lost: a sample waits about a millisecond at 1 kHz, up to
+//! about the gap between samples on a slower stream. It says so once.
 
 use std::time::{Duration, Instant};
 
