@@ -519,15 +519,9 @@ fn many(
     match group {
         Some((g, n)) => {
             let flush = |_: &mut [Lane]| -> anyhow::Result<()> { Ok(n.flush()?) };
-            let s = receive_group(
+            receive_group(
                 &st.raw, g, None, tick, shutdown, lanes, on_frame, flush, on_tick,
             )?;
-            info!(
-                group = g.name(),
-                wakeups = s.group_wakeups,
-                unannounced = s.unannounced,
-                "calibrator's wake-up group"
-            );
             Ok(())
         }
         None => receive_many(&st.raw, None, tick, shutdown, lanes, on_frame, on_tick),

@@ -130,7 +130,7 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
     match &group {
         Some(g) => {
             let polled = |_: &mut State| Ok(());
-            let s = receive_group(
+            receive_group(
                 &raw,
                 g,
                 None,
@@ -141,12 +141,6 @@ pub fn run(ipc: &Ipc, cfg: &Config, shutdown: &Shutdown) -> anyhow::Result<Summa
                 polled,
                 tick,
             )?;
-            info!(
-                group = g.name(),
-                wakeups = s.group_wakeups,
-                unannounced = s.unannounced,
-                "estimator's wake-up group"
-            );
         }
         None => receive_many(&raw, None, ipc::TICK, shutdown, &mut st, on_sample, tick)?,
     }

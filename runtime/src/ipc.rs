@@ -95,16 +95,20 @@ impl Ipc {
             .max_nodes(MAX_NODES)
             .open_or_create()
             .map_err(|e| err(format!("opening {name}"), e))?;
-        let ev = self
-            .node
-            .service_builder(&sname)
+        let ev = self.event_service(&sname, &name)?;
+        Ok((ps, ev))
+    }
+
+    /// The event service `sname` (shown as `name`), with every process's same settings.
+    fn event_service(&self, sname: &ServiceName, name: &str) -> Result<EventFactory, IpcError> {
+        self.node
+            .service_builder(sname)
             .event()
             .max_nodes(MAX_NODES)
             .max_listeners(MAX_SUBSCRIBERS)
             .max_notifiers(MAX_PUBLISHERS * 2)
             .open_or_create()
-            .map_err(|e| err(format!("opening event {name}"), e))?;
-        Ok((ps, ev))
+            .map_err(|e| err(format!("opening event {name}"), e))
     }
 
     /// Publisher side of a stream.
@@ -188,20 +192,13 @@ impl Ipc {
             .as_str()
             .try_into()
             .map_err(|e| err(format!("service name {name}"), e))?;
-        let ev = self
-            .node
-            .service_builder(&sname)
-            .event()
-            .max_nodes(MAX_NODES)
-            .max_listeners(MAX_SUBSCRIBERS)
-            .max_notifiers(MAX_PUBLISHERS * 2)
-            .open_or_create()
-            .map_err(|e| err(format!("opening event {name}"), e))?;
+        let ev = self.event_service(&sname, &name)?;
         Ok((ev, name))
     }
 
-    /// The notifying end of a wake-up group: a process serving many sensors notifies it once
-    /// per burst of samples on `stream` (after every sensor's own notification).
+    /// The notifying end of a wake-up group: a process serving many sensors notifies it as it
+    /// sends a burst of samples on `stream` ([`GroupNotifier::sent`], [`GroupNotifier::flush`]),
+    /// besides every sensor's own notification.
     pub fn group_notifier(&self, group: &str, stream: Stream) -> Result<GroupNotifier, IpcError> {
         let (ev, name) = self.group_event(group, stream)?;
         let notifier = ev
@@ -524,6 +521,21 @@ impl<T: Debug + ZeroCopySend + Copy + 'static> StreamSubscriber<T> {
     pub fn name(&self) -> &str {
         &self.name
     }
+}
+
+/// Attaches `listener` (of the service `name`) to `ws`.
+pub fn attach<'w, 'a>(
+    ws: &'w WaitSet<ipc::Service>,
+    listener: &'a Listener<ipc::Service>,
+    name: &str,
+) -> Result<WaitSetGuard<'w, 'a, ipc::Service>, IpcError> {
+    ws.attach_notification(listener)
+        .map_err(|e| err(format!("attach {name}"), e))
+}
+
+/// A failed wait of a WaitSet.
+pub fn wait_failed(e: impl Debug) -> IpcError {
+    err("waitset", e)
 }
 
 /// A WaitSet with iceoryx2's signal handling disabled.

@@ -52,12 +52,7 @@ where
 {
     let tick_every = tick.clamp(Duration::from_millis(1), ipc::TICK);
     let ws = ipc::waitset()?;
-    let _guard = ws
-        .attach_notification(group.listener())
-        .map_err(|e| IpcError {
-            what: format!("attach {}", group.name()),
-            detail: format!("{e:?}"),
-        })?;
+    let _guard = ipc::attach(&ws, group.listener(), group.name())?;
     let mut stats = GroupStats::default();
     let mut wait = FALLBACK_POLL;
     let mut last_tick = Instant::now();
@@ -65,10 +60,7 @@ where
     let mut warned = false;
     while !shutdown.requested() && until.is_none_or(|u| Instant::now() < u) {
         ws.wait_and_process_once_with_timeout(|_| CallbackProgression::Stop, wait)
-            .map_err(|e| IpcError {
-                what: "waitset".into(),
-                detail: format!("{e:?}"),
-            })?;
+            .map_err(ipc::wait_failed)?;
         let woken = group.clear()?;
         stats.group_wakeups += woken as u64;
         let got = poll_all(subs, state, &mut on_sample)?;
@@ -101,6 +93,12 @@ where
             last_tick = Instant::now();
         }
     }
+    tracing::info!(
+        group = group.name(),
+        wakeups = stats.group_wakeups,
+        unannounced = stats.unannounced,
+        "wake-up group"
+    );
     Ok(stats)
 }
 

@@ -137,12 +137,7 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
     match mode {
         WakeMode::Event => {
             let ws = ipc::waitset()?;
-            let guard = ws
-                .attach_notification(sub.listener()?)
-                .map_err(|e| IpcError {
-                    what: format!("attach {}", sub.name()),
-                    detail: format!("{e:?}"),
-                })?;
+            let guard = ipc::attach(&ws, sub.listener()?, sub.name())?;
             let mut failure = None;
             while !done(shutdown) && failure.is_none() {
                 ws.wait_and_process_once_with_timeout(
@@ -161,10 +156,7 @@ pub fn receive_loop<T: std::fmt::Debug + ZeroCopySend + Copy + 'static>(
                     },
                     tick_every,
                 )
-                .map_err(|e| IpcError {
-                    what: "waitset".into(),
-                    detail: format!("{e:?}"),
-                })?;
+                .map_err(ipc::wait_failed)?;
                 tick(&mut last_tick);
             }
             match failure {
@@ -239,13 +231,7 @@ where
     let ws = ipc::waitset()?;
     let mut guards = Vec::with_capacity(subs.len());
     for sub in subs {
-        guards.push(
-            ws.attach_notification(sub.listener()?)
-                .map_err(|e| IpcError {
-                    what: format!("attach {}", sub.name()),
-                    detail: format!("{e:?}"),
-                })?,
-        );
+        guards.push(ipc::attach(&ws, sub.listener()?, sub.name())?);
     }
     let mut index: Vec<(WaitSetAttachmentId<iceoryx2::service::ipc::Service>, usize)> = guards
         .iter()
@@ -280,10 +266,7 @@ where
             },
             tick_every,
         )
-        .map_err(|e| IpcError {
-            what: "waitset".into(),
-            detail: format!("{e:?}"),
-        })?;
+        .map_err(ipc::wait_failed)?;
         if let Some(e) = failure {
             return Err(e);
         }
