@@ -88,9 +88,10 @@ fn autocov(x: &[f64], keep: &[bool], lags: &[usize]) -> Vec<f64> {
         .collect()
 }
 
-/// No-load samples far from any load: the force at most 2 % of its peak for the last two
-/// seconds (what a release leaves, a hysteresis remnant or a creep recovery, is not noise).
-fn quiet_rest(ds: &crate::data::Dataset) -> Vec<bool> {
+/// No-load samples far from any load: the force at most 2 % of its peak for the last
+/// `after_s` seconds (what a release leaves, a hysteresis remnant or a creep recovery, is not
+/// noise; the noise model asks for 2 s, the wander for [`crate::wander::QUIET_AFTER_S`]).
+pub(crate) fn quiet_rest(ds: &crate::data::Dataset, after_s: f64) -> Vec<bool> {
     let limit = 0.02 * ds.max_force();
     let mut last_load = f64::NEG_INFINITY;
     ds.t.iter()
@@ -99,7 +100,7 @@ fn quiet_rest(ds: &crate::data::Dataset) -> Vec<bool> {
             if f > limit {
                 last_load = t;
             }
-            f <= limit && t - last_load >= 2.0
+            f <= limit && t - last_load >= after_s
         })
         .collect()
 }
@@ -192,7 +193,7 @@ impl NoiseModel {
         let (len, n) = (ds.len(), ds.n);
         let big = ((1.0 / ds.dt()).round() as usize).clamp(3, (len / 8).max(3));
         let lags = [0, 1, 2, big, 2 * big];
-        let rest = quiet_rest(ds);
+        let rest = quiet_rest(ds, 2.0);
         // Each node against the mean of the nodes at the same sample: what moves every node
         // together at rest (a drift of temperature, a new mounting's baselines, a common
         // wander) cannot be told apart there and is left to the held-out test; what is left is

@@ -97,7 +97,7 @@ impl CommonWander {
     /// with `own_variance` each node's own noise variance at rest.
     pub fn estimate(ctx: &Context, resid: &[f64], own_variance: f64) -> CommonWander {
         let ds = ctx.ds;
-        let quiet = quiet_samples(ctx);
+        let quiet = crate::noise::quiet_rest(ctx.ds, QUIET_AFTER_S);
         let mut w = CommonWander {
             variance: 0.0,
             tau_s: 0.0,
@@ -285,23 +285,6 @@ fn run(t: &[f64], obs: &[f64], r: &[f64], var: f64, tau: f64) -> Pass {
         p.pf[i] = pv;
     }
     p
-}
-
-/// No-load samples at least [`QUIET_AFTER_S`] after the last load (force above 2 % of its
-/// peak).
-fn quiet_samples(ctx: &Context) -> Vec<bool> {
-    let ds = ctx.ds;
-    let limit = 0.02 * ds.max_force();
-    let mut last_load = f64::NEG_INFINITY;
-    ds.t.iter()
-        .zip(&ds.force)
-        .map(|(&t, &f)| {
-            if f > limit {
-                last_load = t;
-            }
-            f <= limit && t - last_load >= QUIET_AFTER_S
-        })
-        .collect()
 }
 
 #[cfg(test)]
