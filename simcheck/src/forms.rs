@@ -74,10 +74,26 @@ pub fn bouc_wen_load<'a>(
     deadband: f64,
     asym: f64,
 ) -> impl Iterator<Item = f64> + 'a {
+    bouc_wen_states(force, r, knee, sc, deadband, asym, 0.0)
+        .zip(force)
+        .map(move |(z, &fi)| fi + share * sc * z)
+}
+
+/// The Bouc-Wen state `z` (see [`bouc_wen_load`]) on the load `u = play_eps(F) / sc`,
+/// saturating at `r`, started at `z0` (clamped to `-r..=r`).
+fn bouc_wen_states<'a>(
+    force: &'a [f64],
+    r: f64,
+    knee: &'a Knee,
+    sc: f64,
+    deadband: f64,
+    asym: f64,
+    z0: f64,
+) -> impl Iterator<Item = f64> + 'a {
     let r = r.max(1e-12);
     let (beta, gamma) = (1.0 + asym, 1.0 - asym);
     let (inv_sc, inv_r, inv_2r) = (1.0 / sc, 1.0 / r, 0.5 / r);
-    let (mut z, mut u_prev, mut play) = (0.0f64, 0.0f64, 0.0f64);
+    let (mut z, mut u_prev, mut play) = (z0.clamp(-r, r), 0.0f64, 0.0f64);
     force.iter().map(move |&fi| {
         let l = fi.max(0.0);
         play = play.clamp(l - deadband, l + deadband);
@@ -89,8 +105,31 @@ pub fn bouc_wen_load<'a>(
                 - (beta * du.abs() * z + gamma * du * z.abs()) * knee.at(z.abs() * inv_r) * inv_2r;
         }
         z = z.clamp(-r, r);
-        fi + share * sc * z
+        z
     })
+}
+
+/// The additive Bouc-Wen terms (series shared by every node, amplitudes per node): the state
+/// `z` of [`bouc_wen_load`] on the total force (saturating at `r` newtons, exponent of `knee`,
+/// asymmetry `asym`), started at `z0 r` (a recording starts with whatever history the sensor
+/// had, not always the virgin state), and `z F / F_max`. With a fixed load map every node's
+/// own load is the total force times its share, so one state on the total force serves every
+/// node; its two amplitudes carry the node's strength of hysteresis and how its loop grows
+/// with the load (a loop that widens at higher loads; the node's law's slope, which a loop in
+/// the load path is seen through).
+pub fn bouc_wen_gap(
+    force: &[f64],
+    r: f64,
+    knee: &Knee,
+    deadband: f64,
+    asym: f64,
+    z0: f64,
+) -> (Vec<f64>, Vec<f64>) {
+    let fmax = force.iter().fold(0.0f64, |a, &b| a.max(b)).max(1e-12);
+    bouc_wen_states(force, r, knee, 1.0, deadband, asym, z0 * r)
+        .zip(force)
+        .map(|(z, &fi)| (z, z * fi.max(0.0) / fmax))
+        .unzip()
 }
 
 /// `x^(n-1)` on `0..=1`, tabulated (a `powf` per node and sample was most of an evaluation's

@@ -19,7 +19,7 @@ pub fn power_summary(
     ev: &crate::model::Eval,
     ev_n: usize,
 ) -> (Config, Vec<Vec<f64>>) {
-    let asymmetric = cur.hyst_bouc_wen && cur.hyst_bw_asym != 0.0;
+    let asymmetric = cur.hyst_bouc_wen && cur.hyst_share.is_some() && cur.hyst_bw_asym != 0.0;
     if cur.law == Law::Power && !asymmetric {
         return (cur.clone(), ev.theta.clone());
     }
