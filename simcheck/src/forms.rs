@@ -231,6 +231,27 @@ mod tests {
     }
 
     #[test]
+    fn the_additive_bouc_wen_starts_where_it_is_told_and_grows_with_the_load() {
+        // Rest, a ramp to 10 N and back to rest.
+        let mut f = vec![0.0; 10];
+        f.extend((0..=100).map(|i| i as f64 * 0.1));
+        f.extend((0..=100).rev().map(|i| i as f64 * 0.1));
+        let knee = Knee::new(1.0);
+        let (virgin, _) = bouc_wen_gap(&f, 1.0, &knee, 0.0, 0.0, 0.0);
+        let (unloaded, zu) = bouc_wen_gap(&f, 1.0, &knee, 0.0, 0.0, -1.0);
+        // At rest before the press: 0 for the virgin state, -r for a sensor last unloaded.
+        assert_eq!(virgin[5], 0.0);
+        assert_eq!(unloaded[5], -1.0);
+        // Both saturate near +r at the top and fall back toward -r after unloading.
+        let top = 10 + 100;
+        assert!(virgin[top] > 0.99 && unloaded[top] > 0.99);
+        assert!(unloaded[f.len() - 1] < -0.99);
+        // The second term is z F / F_max: the state itself at the top, nothing at rest.
+        assert!((zu[top] - unloaded[top]).abs() < 1e-12);
+        assert_eq!(zu[5], 0.0);
+    }
+
+    #[test]
     fn a_bouc_wen_load_saturates_and_ignores_noise_inside_its_deadband() {
         // Ramp to 5 N, then hold with +-0.02 N of alternating noise: with a 0.06 N deadband the
         // state stays at its saturation, and the load is F + share z.
