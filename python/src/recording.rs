@@ -163,8 +163,8 @@ fn read_taxrec(py: Python<'_>, path: &Path, sensor: Option<&str>) -> PyResult<St
         .detach(|| {
             let mut reader = RecordFileReader::open(path).map_err(|e| e.to_string())?;
             let mut streams = Streams::default();
-            for mut rec in reader.by_ref() {
-                streams.add(&mut rec, sensor);
+            while let Some(rec) = reader.next_view() {
+                streams.add(rec, sensor);
             }
             let stop = reader
                 .stop_position()
