@@ -141,16 +141,34 @@ impl<R: Read, F: FnMut(McapView<'_>) -> Result<(), McapError>> Walker<'_, R, F> 
 
     /// The file's records from the start magic to the end magic.
     fn file(&mut self) -> Result<Walked, McapError> {
+        self.magic()?;
+        match self.records(None)? {
+            Some(w) => Ok(w),
+            None => Ok(Walked::Done),
+        }
+    }
+
+    /// Reads and checks the start magic.
+    fn magic(&mut self) -> Result<(), McapError> {
         let mut magic = [0u8; 8];
         let n = self.read(&mut magic)?;
         if magic[..n] != *::mcap::MAGIC {
             return Err(self.error("start magic", 0, magic_error(&magic[..n])));
         }
+        Ok(())
+    }
+
+    /// Walks file-level records until the walk ends (`Some`) or, given an `end`, the position
+    /// reaches it (`None`).
+    fn records(&mut self, end: Option<u64>) -> Result<Option<Walked>, McapError> {
         let mut body = std::mem::take(&mut self.buf);
         let walked = loop {
+            if end.is_some_and(|end| self.pos >= end) {
+                break Ok(None);
+            }
             match self.next(&mut body) {
                 Ok(None) => {}
-                Ok(Some(w)) => break Ok(w),
+                Ok(Some(w)) => break Ok(Some(w)),
                 Err(e) => break Err(e),
             }
         };
@@ -353,8 +371,58 @@ pub(super) fn walk_from(
     .file()
 }
 
+/// Walks one part of the file at `path` (of `size` bytes): the file-level records from byte
+/// `start` (0, or a record boundary after the start magic) to byte `end` (a record boundary),
+/// or to the end of the file when `end` is `None`, handing each message to `f`. A part that
+/// does not start at 0 first takes the `schemas_and_channels` records (opcode, body, file
+/// offset; from the summary), since the records that define them come earlier in the file.
+///
+/// True when the part was walked whole and ended exactly at `end` (at the footer and end magic
+/// for the last part); false, with no error, when it needs the whole file read in order (a
+/// compressed chunk, a record across `end`). Errors name the message index within the part.
+pub(super) fn walk_part(
+    path: &Path,
+    size: u64,
+    (start, end): (u64, Option<u64>),
+    schemas_and_channels: &[(u8, &[u8], u64)],
+    f: impl FnMut(McapView<'_>) -> Result<(), McapError>,
+) -> Result<bool, McapError> {
+    use std::io::{Seek, SeekFrom};
+    let io = |error| McapError::Io {
+        path: path.to_path_buf(),
+        error,
+    };
+    let mut file = File::open(path).map_err(io)?;
+    file.seek(SeekFrom::Start(start)).map_err(io)?;
+    let mut w = Walker {
+        path,
+        reader: BufReader::with_capacity(1 << 16, file),
+        size,
+        pos: start,
+        buf: Vec::new(),
+        acc: ChannelAccumulator::default(),
+        chans: Vec::new(),
+        slots: Slots::default(),
+        delivered: 0,
+        past_data_end: false,
+        f,
+    };
+    if start == 0 {
+        w.magic()?;
+    } else {
+        for &(opcode, body, at) in schemas_and_channels {
+            w.record(opcode, body, at)?;
+        }
+    }
+    Ok(match (w.records(end)?, end) {
+        (None, Some(end)) => w.pos == end,
+        (Some(Walked::Done), None) => true,
+        _ => false,
+    })
+}
+
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::super::{read, read_messages, McapMessage, McapRecordWriter};
     use super::*;
     use crate::records::Record;
@@ -365,7 +433,7 @@ mod tests {
     /// `n` frames' records of two sensors: raw frames whose geometry changes (so a reused
     /// payload must not keep the previous frame's entries), forces, references and estimates,
     /// with non-finite values.
-    fn records(n: u64) -> Vec<Record> {
+    pub(in super::super) fn records(n: u64) -> Vec<Record> {
         let mut out = Vec::new();
         for i in 0..n {
             let sensor = sensor_id_bytes(if i % 3 == 0 { "s1" } else { "s0" }).expect("id");
@@ -411,7 +479,11 @@ mod tests {
         out
     }
 
-    fn write(p: &Path, options: Option<::mcap::WriteOptions>, recs: &[Record]) {
+    pub(in super::super) fn write(
+        p: &Path,
+        options: Option<::mcap::WriteOptions>,
+        recs: &[Record],
+    ) {
         let mut w = match options {
             Some(o) => McapRecordWriter::with_options(p, o),
             None => McapRecordWriter::create(p),
