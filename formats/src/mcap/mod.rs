@@ -11,6 +11,7 @@ mod inorder;
 mod json;
 mod parts;
 mod read;
+mod unpack;
 mod walk;
 
 use std::collections::{BTreeMap, HashMap};

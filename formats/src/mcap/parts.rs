@@ -4,7 +4,7 @@
 //! walker ([`super::walk::walk_part`]) into its own consumer, so the consumers' outputs, taken
 //! in order, hold the messages in file order.
 //!
-//! Anything unusual (no summary, a compressed chunk, a summary whose offsets are not record
+//! Anything unusual (no summary, compressed chunks, a summary whose offsets are not record
 //! boundaries, any error in any part) sends the whole file through the one-thread reader
 //! instead, with fresh consumers: the result, and every error, is then exactly that reader's.
 
@@ -75,7 +75,7 @@ fn summary(file: &mut File, size: u64) -> Option<Summary> {
                 McapRecord::ChunkIndex(c) if c.compression.is_empty() => {
                     out.chunk_starts.push(c.chunk_start_offset)
                 }
-                // A compressed chunk: the one-thread reader names what it cannot read.
+                // Compressed chunks are read on one thread.
                 _ => return None,
             },
             _ => {}
