@@ -552,5 +552,8 @@ fn realtime_processes_run_under_sched_fifo_or_refuse_with_one_line_errors() {
     }
     p.finish(probe, LIMIT);
     let out = p[probe].output();
-    assert!(out.contains("taxel/a,b/force: ") && out.contains(", dropped 0"), "{out}");
+    assert!(
+        out.contains("taxel/a,b/force: ") && out.contains(", dropped 0"),
+        "{out}"
+    );
 }

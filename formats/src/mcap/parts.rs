@@ -102,7 +102,9 @@ fn cuts(chunk_starts: &[u64], size: u64, parts: usize) -> Vec<u64> {
 
 /// Hands every message of the file at `path` to `f` with the consumer of its part, reading the
 /// file on up to `parts` threads; returns the consumers in file order (one when the file is
-/// read on one thread). `make` makes a fresh consumer.
+/// read on one thread). `make` makes a fresh consumer. When a part fails, the file is read
+/// again on one thread into a fresh consumer: `f` should touch nothing but its consumer, as
+/// the parts' consumers (and what `f` gave them) are then dropped.
 pub fn for_each_view_parts<C: Send>(
     path: &Path,
     parts: usize,

@@ -9,7 +9,8 @@
 //! checks and reads the same messages in the same order (tested on files of several writers'
 //! chunkings, on every cut of a file and on byte flips). A `zstd` or `lz4` chunk is
 //! decompressed into a second reused buffer ([`super::unpack`]) and walked there; a chunk of
-//! any other compression it leaves to the crate ([`Walked::Unusual`]), which names it. Damage is an error naming the record and its byte offset.
+//! any other compression it leaves to the crate ([`Walked::Unusual`]), which names it. Damage
+//! is an error naming the record and its byte offset.
 
 use std::borrow::Cow;
 use std::fs::File;
@@ -414,7 +415,8 @@ pub(super) fn walk_from(
 ///
 /// True when the part was walked whole and ended exactly at `end` (at the footer and end magic
 /// for the last part); false, with no error, when it needs the whole file read in order (a
-/// compressed chunk, a record across `end`). Errors name the message index within the part.
+/// chunk of a compression it cannot read, a record across `end`). Errors name the message
+/// index within the part.
 pub(super) fn walk_part(
     path: &Path,
     size: u64,
