@@ -113,7 +113,25 @@ fn magic_error(got: &[u8]) -> ::mcap::McapError {
     }
 }
 
-impl<R: Read, F: FnMut(McapView<'_>) -> Result<(), McapError>> Walker<'_, R, F> {
+impl<'a, R: Read, F: FnMut(McapView<'_>) -> Result<(), McapError>> Walker<'a, R, F> {
+    /// A walker of `reader`, the `size` bytes of `path`, positioned at byte `pos`.
+    fn new(path: &'a Path, reader: R, size: u64, pos: u64, f: F) -> Self {
+        Walker {
+            path,
+            reader,
+            size,
+            pos,
+            buf: Vec::new(),
+            unpacked: Vec::new(),
+            acc: ChannelAccumulator::default(),
+            chans: Vec::new(),
+            slots: Slots::default(),
+            delivered: 0,
+            past_data_end: false,
+            f,
+        }
+    }
+
     fn error(&self, what: &'static str, at: u64, error: ::mcap::McapError) -> McapError {
         McapError::Record {
             path: self.path.to_path_buf(),
@@ -390,21 +408,7 @@ pub(super) fn walk_from(
     size: u64,
     f: impl FnMut(McapView<'_>) -> Result<(), McapError>,
 ) -> Result<Walked, McapError> {
-    Walker {
-        path,
-        reader,
-        size,
-        pos: 0,
-        buf: Vec::new(),
-        unpacked: Vec::new(),
-        acc: ChannelAccumulator::default(),
-        chans: Vec::new(),
-        slots: Slots::default(),
-        delivered: 0,
-        past_data_end: false,
-        f,
-    }
-    .file()
+    Walker::new(path, reader, size, 0, f).file()
 }
 
 /// Walks one part of the file at `path` (of `size` bytes): the file-level records from byte
@@ -431,20 +435,8 @@ pub(super) fn walk_part(
     };
     let mut file = File::open(path).map_err(io)?;
     file.seek(SeekFrom::Start(start)).map_err(io)?;
-    let mut w = Walker {
-        path,
-        reader: BufReader::with_capacity(1 << 16, file),
-        size,
-        pos: start,
-        buf: Vec::new(),
-        unpacked: Vec::new(),
-        acc: ChannelAccumulator::default(),
-        chans: Vec::new(),
-        slots: Slots::default(),
-        delivered: 0,
-        past_data_end: false,
-        f,
-    };
+    let reader = BufReader::with_capacity(1 << 16, file);
+    let mut w = Walker::new(path, reader, size, start, f);
     if start == 0 {
         w.magic()?;
     } else {
