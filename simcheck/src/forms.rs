@@ -4,14 +4,15 @@
 
 use crate::data::Dataset;
 use crate::effects::{Config, MAX_CREEP_TERMS};
+use crate::numeric::StepFactors;
 
 /// The load transform: creep on the load `f` (the Prony form, or creep that stays with the
 /// load, see [`Config::creep_under_load`]; its state is driven by whether `f` is above `on_n`) (hysteresis enters as its own per-node term, see
 /// [`crate::numeric::play_gap`], or in `f` itself); the load, clamped at 0, is written for the
 /// samples where `need` holds, in order (every sample when `None`; the parameter search looks
 /// at every `stride`-th training sample only), and the creep states follow every sample. A low-pass's
-/// step factor is computed once per distinct sample interval (recordings are evenly sampled),
-/// not once per sample. The force law is applied by the caller.
+/// step factor is computed once per distinct sample interval ([`StepFactors`]), not once per
+/// sample. The force law is applied by the caller.
 pub fn load_series(
     f: impl Iterator<Item = f64>,
     dt: &[f64],
@@ -23,7 +24,12 @@ pub fn load_series(
 ) {
     out.clear();
     let mut s = [0.0f64; MAX_CREEP_TERMS];
-    let mut step = [(f64::NAN, 0.0f64); MAX_CREEP_TERMS];
+    let mut step: Vec<StepFactors> = cfg.creep.as_ref().map_or_else(Vec::new, |terms| {
+        terms
+            .iter()
+            .map(|&(_, tau)| StepFactors::new(tau.min(tau_max)))
+            .collect()
+    });
     for (i, fi) in f.enumerate() {
         let mut l = fi.max(0.0);
         if let Some(terms) = &cfg.creep {
@@ -36,12 +42,9 @@ pub fn load_series(
                 base
             };
             let mut extra = 0.0;
-            for ((st, &(c, tau)), cache) in s.iter_mut().zip(terms).zip(step.iter_mut()) {
+            for ((st, &(c, _)), cache) in s.iter_mut().zip(terms).zip(step.iter_mut()) {
                 if i > 0 {
-                    if cache.0 != dt[i] {
-                        *cache = (dt[i], 1.0 - (-dt[i] / tau.min(tau_max)).exp());
-                    }
-                    *st += (input - *st) * cache.1;
+                    *st += (input - *st) * cache.at(dt[i]);
                 }
                 if cfg.creep_under_load {
                     extra += c * *st;
