@@ -166,9 +166,10 @@ pub(super) struct NodeFit<'a> {
     /// The samples fitted on.
     pub(super) fit_idx: &'a [usize],
     pub(super) r: f64,
-    /// Every node's local regressors, when they are the same for every node (see
-    /// [`Terms::node_independent`]): computed once, not once per node.
-    pub(super) shared: Option<Arc<Locals>>,
+    /// Each group's local regressors, when nodes share them (see [`Terms::group`]; all nodes
+    /// one group when [`Terms::node_independent`]): computed once per group, not once per
+    /// node. Empty: each node computes its own.
+    pub(super) groups: Vec<Arc<Locals>>,
 }
 
 impl NodeFit<'_> {
@@ -191,7 +192,8 @@ impl NodeFit<'_> {
         };
         let mut th = vec![0.0; pdim];
         let base = k * self.fit_idx.len();
-        let locals = match &self.shared {
+        let shared = self.terms.group(k).and_then(|(g, _)| self.groups.get(g));
+        let locals = match shared {
             Some(l) => l.clone(),
             None => Arc::new(Locals::new(self.terms, k, self.fit_idx)),
         };

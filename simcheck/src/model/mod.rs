@@ -123,9 +123,7 @@ fn evaluate_inner(
             obs: &obs,
             fit_idx: &fit_idx,
             r: cfg.floor(),
-            shared: terms
-                .node_independent()
-                .then(|| std::sync::Arc::new(Locals::new(&terms, 0, &fit_idx))),
+            groups: shared_locals(&terms, n, &fit_idx),
         };
         (theta, locals) = crate::parallel::map(n, |k| fit.node(k, &m))
             .into_iter()
@@ -166,6 +164,28 @@ fn evaluate_inner(
         trial_gains: gains,
         train_sse,
     }
+}
+
+/// The local regressors of each group of nodes that share them (see [`Terms::group`]): one set
+/// for all nodes when they read the same load, one per load series when fewer series than nodes
+/// (nodes with the same load scale); empty when every node has its own.
+fn shared_locals(terms: &Terms, n: usize, fit_idx: &[usize]) -> Vec<std::sync::Arc<Locals>> {
+    if terms.node_independent() {
+        return vec![std::sync::Arc::new(Locals::new(terms, 0, fit_idx))];
+    }
+    let Some((_, groups)) = terms.group(0) else {
+        return Vec::new();
+    };
+    if groups >= n {
+        return Vec::new();
+    }
+    // The first node of each group stands for it.
+    let first: Vec<usize> = (0..groups)
+        .map(|g| (0..n).find(|&k| terms.group(k).is_some_and(|(h, _)| h == g)).unwrap_or(0))
+        .collect();
+    crate::parallel::map(groups, |g| {
+        std::sync::Arc::new(Locals::new(terms, first[g], fit_idx))
+    })
 }
 
 /// The thermal factor per sample from the recorded temperature, or all ones and the latent
