@@ -226,7 +226,8 @@ mod tests {
         let f: Vec<f64> = (0..4000)
             .map(|i| {
                 let t = i as f64 * 0.01;
-                (3.0 * (t * 0.7).sin() + 2.5 * (t * 0.13).sin()).max(0.0) + 0.01 * ((i * 7) % 5) as f64
+                (3.0 * (t * 0.7).sin() + 2.5 * (t * 0.13).sin()).max(0.0)
+                    + 0.01 * ((i * 7) % 5) as f64
             })
             .collect();
         let knee = Knee::new(2.3);
@@ -235,7 +236,10 @@ mod tests {
         for (sc, got) in scs.iter().zip(&together) {
             let alone: Vec<f64> = bouc_wen_load(&f, 0.4, &knee, 0.45, *sc, 0.03, 0.3).collect();
             assert_eq!(got.len(), alone.len());
-            assert!(got.iter().zip(&alone).all(|(a, b)| a.to_bits() == b.to_bits()));
+            assert!(got
+                .iter()
+                .zip(&alone)
+                .all(|(a, b)| a.to_bits() == b.to_bits()));
         }
     }
 

@@ -448,11 +448,7 @@ fn accumulate(a: &mut [f64], b: &mut [f64], xrow: &[f64], w: f64, z: f64) {
 /// [`accumulate`] for `P` regressors.
 #[inline(always)]
 fn accumulate_n<const P: usize>(a: &mut [f64], b: &mut [f64], xrow: &[f64], w: f64, z: f64) {
-    let (Some(a), Some(b), Some(x)) = (
-        a.get_mut(..P * P),
-        b.get_mut(..P),
-        xrow.get(..P),
-    ) else {
+    let (Some(a), Some(b), Some(x)) = (a.get_mut(..P * P), b.get_mut(..P), xrow.get(..P)) else {
         return accumulate_any(a, b, xrow, w, z);
     };
     for u in 0..P {

@@ -127,12 +127,20 @@ impl Loads {
                         let bw = |scs: &[f64]| -> Vec<Vec<f64>> {
                             let (f, db, asym) = (&grid.force, ctx.force_deadband, cfg.hyst_bw_asym);
                             let states: Vec<Vec<f64>> = match *scs {
-                                [a, b, c, d] => bouc_wen_loads(f, r, knee, share, [a, b, c, d], db, asym).into(),
-                                [a, b, c] => bouc_wen_loads(f, r, knee, share, [a, b, c], db, asym).into(),
-                                [a, b] => bouc_wen_loads(f, r, knee, share, [a, b], db, asym).into(),
+                                [a, b, c, d] => {
+                                    bouc_wen_loads(f, r, knee, share, [a, b, c, d], db, asym).into()
+                                }
+                                [a, b, c] => {
+                                    bouc_wen_loads(f, r, knee, share, [a, b, c], db, asym).into()
+                                }
+                                [a, b] => {
+                                    bouc_wen_loads(f, r, knee, share, [a, b], db, asym).into()
+                                }
                                 _ => scs
                                     .iter()
-                                    .map(|&sc| bouc_wen_load(f, r, knee, share, sc, db, asym).collect())
+                                    .map(|&sc| {
+                                        bouc_wen_load(f, r, knee, share, sc, db, asym).collect()
+                                    })
                                     .collect(),
                             };
                             states
