@@ -58,7 +58,11 @@ fn bench_json_has_every_case() {
             .unwrap_or_else(|| panic!("{role} missing: {skin}"));
         assert!(skin[r..].contains("\"rss_mb\": "), "{skin}");
     }
-    for heavy in ["skin_64_sensors_per_process", "skin_max_sensors"] {
+    for heavy in [
+        "skin_64_sensors_per_process",
+        "skin_max_sensors",
+        "skin_64_sensors_realtime",
+    ] {
         assert!(
             !j.contains(&format!("\"case\": \"{heavy}\"")),
             "{heavy} ran"

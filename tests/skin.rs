@@ -3,7 +3,7 @@
 //! (same seeds, same frames, same estimates, same forces); a broken calibration file of one
 //! sensor leaves the others served and reloading; bad sensor lists are refused with one-line
 //! errors; `taxel up` runs the shared layout, and a SIGKILLed shared calibrator is restarted
-//! with every one of its sensors.
+//! with every one of its sensors; `--realtime` puts each process under SCHED_FIFO.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -482,4 +482,78 @@ flush_ms = 100
         }
     }
     p.assert_released(LIMIT);
+}
+
+/// The scheduling policy and real-time priority of process `pid`, from /proc/PID/stat
+/// (fields 41 and 40, counted after the command name's closing parenthesis).
+fn policy(pid: u32) -> (u32, u32) {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).expect("stat");
+    let rest = &stat[stat.rfind(')').expect("comm") + 2..];
+    let f: Vec<&str> = rest.split(' ').collect();
+    // `rest` starts at field 3 (state).
+    (
+        f[41 - 3].parse().expect("policy"),
+        f[40 - 3].parse().expect("rt_priority"),
+    )
+}
+
+#[test]
+fn realtime_processes_run_under_sched_fifo_or_refuse_with_one_line_errors() {
+    // An out-of-range priority is clap's error (with its usual hint line), exit 2.
+    let (code, _, err) =
+        pipeline!("rt0").run(&["publisher", "--sensor", "a", "--realtime", "0", "sim"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.starts_with("error: invalid value '0' for '--realtime"),
+        "{err}"
+    );
+    config_error(
+        &[
+            "latency",
+            "--sensor",
+            "a",
+            "--realtime",
+            "5",
+            "--wake",
+            "busy",
+        ],
+        "--realtime 5 with --wake busy",
+    );
+    let mut p = pipeline!("rt");
+    let cal = p.write("cal.toml", SIM_CAL);
+    // A probe with nothing to measure: refused priority is exit 2 and says so; granted, it
+    // runs and finds no samples (exit 1).
+    let (code, _, err) = p.run(&[
+        "latency",
+        "--sensor",
+        "none",
+        "--realtime",
+        "5",
+        "--seconds",
+        "0.2",
+    ]);
+    if code == 2 {
+        assert!(
+            err.contains("the system refused real-time priority"),
+            "{err}"
+        );
+        // Without the right (not root, no CAP_SYS_NICE), the refusal above is the behaviour.
+        println!("real-time priority refused here: {err}");
+        return;
+    }
+    assert!(err.contains("no samples"), "{code}: {err}");
+    let cal_role = p.calibrator("a,b", &cal, &["--realtime", "7"]);
+    let est = p.estimator("a,b", &["--curvature-m1", "40", "--realtime", "6"]);
+    let publ = p.publisher_ready("a,b", &["--realtime", "8", "sim", "--rate-hz", "200"]);
+    let probe = p.latency("probe", "a,b", &["--realtime", "9", "--seconds", "2"]);
+    const SCHED_FIFO: u32 = 1;
+    for (role, prio) in [(cal_role, 7), (est, 6), (publ, 8), (probe, 9)] {
+        assert_eq!(policy(p[role].child.id()), (SCHED_FIFO, prio));
+    }
+    p.finish(probe, LIMIT);
+    let out = p[probe].output();
+    assert!(
+        out.contains("taxel/a,b/force: ") && out.contains(", dropped 0"),
+        "{out}"
+    );
 }

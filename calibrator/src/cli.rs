@@ -8,6 +8,7 @@ use clap::{Parser, Subcommand};
 use taxel_formats::readout::ReadoutChoice;
 use taxel_formats::Recording;
 use taxel_runtime::ipc::Ipc;
+use taxel_runtime::priority::RealtimeArg;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
 use taxel_runtime::sensors::{process_name, sensor_list, PerSensor, WakeGroupArg};
 use taxel_runtime::wake::WakeMode;
@@ -60,6 +61,8 @@ pub struct RunArgs {
     pub wake: WakeMode,
     #[command(flatten)]
     pub group: WakeGroupArg,
+    #[command(flatten)]
+    pub realtime: RealtimeArg,
 }
 
 #[derive(Debug, clap::Args)]
@@ -157,6 +160,7 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
         )));
     }
     let group = a.group.checked().map_err(bad)?;
+    a.realtime.apply(a.wake == WakeMode::Busy).map_err(bad)?;
     // Each distinct file is loaded once; a bad one names the sensor(s) it was given for.
     let mut files: Vec<PathBuf> = Vec::new();
     let mut initial = Vec::new();

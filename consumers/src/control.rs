@@ -20,6 +20,7 @@ use std::time::{Duration, Instant};
 use clap::Parser;
 use taxel_msgs::{force_flags, ForceSample, Stream};
 use taxel_runtime::ipc::Ipc;
+use taxel_runtime::priority::RealtimeArg;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
 use taxel_runtime::stats::SeqTracker;
 use taxel_runtime::wake::{receive_loop, LoopOptions, WakeMode};
@@ -61,6 +62,8 @@ pub struct Args {
     /// How to wait for force samples: event (default), busy, or adaptive.
     #[arg(long, value_enum, default_value_t = WakeMode::Event)]
     pub wake: WakeMode,
+    #[command(flatten)]
+    pub realtime: RealtimeArg,
 }
 
 /// The simulated hand: grip command in [0, 1] drives the grip position with a 50 ms lag.
@@ -234,6 +237,9 @@ fn run(a: Args) -> Result<(), Failure> {
             )));
         }
     }
+    a.realtime
+        .apply(a.wake == WakeMode::Busy)
+        .map_err(|e| Failure::config(anyhow::anyhow!(e)))?;
     let shutdown = Shutdown::install().runtime_err()?;
     let ipc = Ipc::open(&a.common.prefix, &format!("control-{}", a.sensor)).runtime_err()?;
     let force = ipc

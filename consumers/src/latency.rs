@@ -8,6 +8,7 @@ use clap::Parser;
 use iceoryx2::prelude::*;
 use taxel_msgs::{ForceSample, RawFrame, Stream};
 use taxel_runtime::ipc::{GroupListener, Ipc, IpcError, StreamSubscriber};
+use taxel_runtime::priority::RealtimeArg;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
 use taxel_runtime::sensors::WakeGroupArg;
 use taxel_runtime::stats::SeqTracker;
@@ -46,6 +47,8 @@ pub struct Args {
     pub wake: WakeMode,
     #[command(flatten)]
     pub group: WakeGroupArg,
+    #[command(flatten)]
+    pub realtime: RealtimeArg,
 }
 
 pub fn main(args: Args) -> ExitCode {
@@ -264,6 +267,9 @@ fn run(a: Args) -> Result<(), Failure> {
     }
     a.group
         .checked()
+        .map_err(|e| Failure::config(anyhow::anyhow!(e)))?;
+    a.realtime
+        .apply(a.wake == WakeMode::Busy)
         .map_err(|e| Failure::config(anyhow::anyhow!(e)))?;
     let shutdown = Shutdown::install().runtime_err()?;
     let name = if a.sensor.len() == 1 {

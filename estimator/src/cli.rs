@@ -6,6 +6,7 @@ use std::sync::Arc;
 
 use clap::{Parser, Subcommand};
 use taxel_runtime::ipc::Ipc;
+use taxel_runtime::priority::RealtimeArg;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
 use taxel_runtime::sensors::{process_name, resolve_opt, sensor_list, PerSensor, WakeGroupArg};
 use taxel_runtime::Shutdown;
@@ -120,6 +121,8 @@ pub struct RunArgs {
     pub curvature_m1: Option<PerSensor<f64>>,
     #[command(flatten)]
     pub group: WakeGroupArg,
+    #[command(flatten)]
+    pub realtime: RealtimeArg,
     /// Frames per no-load window.
     #[arg(long, default_value_t = DetectorConfig::default().window_frames)]
     pub window_frames: usize,
@@ -173,6 +176,7 @@ fn run(common: &CommonArgs, a: RunArgs) -> Result<(), Failure> {
     let names = sensor_list("--sensor", &a.sensor).map_err(bad)?;
     let n = names.len();
     let group = a.group.checked().map_err(bad)?;
+    a.realtime.apply(false).map_err(bad)?;
     let curvatures = resolve_opt(&a.curvature_m1, "--curvature-m1", n).map_err(bad)?;
     let model_paths = resolve_opt(&a.model, "--model", n).map_err(bad)?;
     let detector = DetectorConfig {

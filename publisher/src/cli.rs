@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::{Parser, Subcommand};
 use taxel_runtime::ipc::Ipc;
+use taxel_runtime::priority::RealtimeArg;
 use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, ResultExt};
 use taxel_runtime::sensors::{process_name, resolve_opt, sensor_list, PerSensor, WakeGroupArg};
 use taxel_runtime::Shutdown;
@@ -29,6 +30,8 @@ pub struct Args {
     pub sensor: String,
     #[command(flatten)]
     pub group: WakeGroupArg,
+    #[command(flatten)]
+    pub realtime: RealtimeArg,
     /// Stop after this many seconds (default: when the source ends, or on Ctrl-C).
     #[arg(long)]
     pub seconds: Option<f64>,
@@ -312,6 +315,9 @@ fn run(args: Args) -> Result<(), Failure> {
     }
     args.group
         .checked()
+        .map_err(|e| Failure::config(anyhow::anyhow!(e)))?;
+    args.realtime
+        .apply(false)
         .map_err(|e| Failure::config(anyhow::anyhow!(e)))?;
     let n = names.len();
     match &args.source {

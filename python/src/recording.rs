@@ -136,6 +136,77 @@ impl Streams {
     }
 }
 
+impl Streams {
+    /// Appends the streams of the next part of the file; false if a stream's columns differ
+    /// (they cannot: a stream's columns come from its one field table).
+    fn append(&mut self, next: Streams) -> bool {
+        let mut same = true;
+        for (name, cols) in next.order.into_iter().zip(next.by_name) {
+            match self.order.iter().position(|s| *s == name) {
+                Some(i) => same &= self.by_name[i].append(cols),
+                None => {
+                    self.order.push(name);
+                    self.by_name.push(cols);
+                }
+            }
+        }
+        same
+    }
+}
+
+impl Columns {
+    /// Appends the rows of the same stream from the next part of the file (the same field
+    /// table, so the same columns in the same order).
+    fn append(&mut self, next: Columns) -> bool {
+        self.rows += next.rows;
+        self.cols.len() == next.cols.len()
+            && self
+                .cols
+                .iter_mut()
+                .zip(next.cols)
+                .fold(true, |same, (mine, theirs)| same & mine.append(theirs))
+    }
+}
+
+impl Col {
+    fn append(&mut self, next: Col) -> bool {
+        match (self, next) {
+            (
+                Col::Sensor { codes, names },
+                Col::Sensor {
+                    codes: more,
+                    names: more_names,
+                },
+            ) => {
+                // The next part numbered its sensors in its own order of appearance.
+                let map: Vec<u16> = more_names
+                    .into_iter()
+                    .map(|n| match names.iter().position(|m| *m == n) {
+                        Some(i) => i as u16,
+                        None => {
+                            names.push(n);
+                            (names.len() - 1) as u16
+                        }
+                    })
+                    .collect();
+                codes.extend(more.into_iter().map(|c| map[c as usize]));
+            }
+            (Col::U64(a), Col::U64(b)) => a.extend(b),
+            (Col::U32(a), Col::U32(b)) => a.extend(b),
+            (Col::U16(a), Col::U16(b)) => a.extend(b),
+            (Col::I32(a), Col::I32(b)) => a.extend(b),
+            (Col::F32(a), Col::F32(b)) => a.extend(b),
+            (Col::F64(a), Col::F64(b)) => a.extend(b),
+            (Col::Arr { values, lens }, Col::Arr { values: v, lens: l }) => {
+                values.extend(v);
+                lens.extend(l);
+            }
+            _ => return false,
+        }
+        true
+    }
+}
+
 /// What kind of file `path` is: by its first bytes, else (a missing file) by its name.
 fn kind(path: &Path) -> &'static str {
     let mut head = [0u8; 8];
@@ -163,8 +234,8 @@ fn read_taxrec(py: Python<'_>, path: &Path, sensor: Option<&str>) -> PyResult<St
         .detach(|| {
             let mut reader = RecordFileReader::open(path).map_err(|e| e.to_string())?;
             let mut streams = Streams::default();
-            for mut rec in reader.by_ref() {
-                streams.add(&mut rec, sensor);
+            while let Some(rec) = reader.next_view() {
+                streams.add(rec, sensor);
             }
             let stop = reader
                 .stop_position()
@@ -193,11 +264,29 @@ fn read_taxrec(py: Python<'_>, path: &Path, sensor: Option<&str>) -> PyResult<St
     }
 }
 
+/// Reads an MCAP file on up to two threads (a 2-core machine is what the target is set on;
+/// parts decode into their own columns, joined in file order).
 fn read_mcap(py: Python<'_>, path: &Path, sensor: Option<&str>) -> PyResult<Streams> {
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get().min(2));
     py.detach(|| {
-        let mut streams = Streams::default();
-        taxel_formats::mcap::for_each_view(path, |m| streams.add(m.record, sensor))?;
-        Ok::<_, taxel_formats::mcap::McapError>(streams)
+        let parts = taxel_formats::mcap::for_each_view_parts(
+            path,
+            threads,
+            Streams::default,
+            |streams, m| streams.add(m.record, sensor),
+        )
+        .map_err(anyhow::Error::from)?;
+        let mut parts = parts.into_iter();
+        let mut streams = parts.next().unwrap_or_default();
+        for part in parts {
+            if !streams.append(part) {
+                return Err(anyhow::anyhow!(
+                    "{}: the parts of the file read on two threads do not match",
+                    path.display()
+                ));
+            }
+        }
+        Ok(streams)
     })
     .map_err(taxel_err)
 }

@@ -4,14 +4,15 @@
 
 use crate::data::Dataset;
 use crate::effects::{Config, MAX_CREEP_TERMS};
+use crate::numeric::StepFactors;
 
 /// The load transform: creep on the load `f` (the Prony form, or creep that stays with the
 /// load, see [`Config::creep_under_load`]; its state is driven by whether `f` is above `on_n`) (hysteresis enters as its own per-node term, see
 /// [`crate::numeric::play_gap`], or in `f` itself); the load, clamped at 0, is written for the
 /// samples where `need` holds, in order (every sample when `None`; the parameter search looks
 /// at every `stride`-th training sample only), and the creep states follow every sample. A low-pass's
-/// step factor is computed once per distinct sample interval (recordings are evenly sampled),
-/// not once per sample. The force law is applied by the caller.
+/// step factor is computed once per distinct sample interval ([`StepFactors`]), not once per
+/// sample. The force law is applied by the caller.
 pub fn load_series(
     f: impl Iterator<Item = f64>,
     dt: &[f64],
@@ -23,7 +24,12 @@ pub fn load_series(
 ) {
     out.clear();
     let mut s = [0.0f64; MAX_CREEP_TERMS];
-    let mut step = [(f64::NAN, 0.0f64); MAX_CREEP_TERMS];
+    let mut step: Vec<StepFactors> = cfg.creep.as_ref().map_or_else(Vec::new, |terms| {
+        terms
+            .iter()
+            .map(|&(_, tau)| StepFactors::new(tau.min(tau_max)))
+            .collect()
+    });
     for (i, fi) in f.enumerate() {
         let mut l = fi.max(0.0);
         if let Some(terms) = &cfg.creep {
@@ -36,12 +42,9 @@ pub fn load_series(
                 base
             };
             let mut extra = 0.0;
-            for ((st, &(c, tau)), cache) in s.iter_mut().zip(terms).zip(step.iter_mut()) {
+            for ((st, &(c, _)), cache) in s.iter_mut().zip(terms).zip(step.iter_mut()) {
                 if i > 0 {
-                    if cache.0 != dt[i] {
-                        *cache = (dt[i], 1.0 - (-dt[i] / tau.min(tau_max)).exp());
-                    }
-                    *st += (input - *st) * cache.1;
+                    *st += (input - *st) * cache.at(dt[i]);
                 }
                 if cfg.creep_under_load {
                     extra += c * *st;
@@ -132,6 +135,47 @@ pub fn bouc_wen_gap(
         .unzip()
 }
 
+/// [`bouc_wen_load`] for `W` nodes at once (their scales `scs`), written out in full: the same
+/// operations on each node's state, interleaved over the nodes so that their recurrences, each
+/// waiting on its own last step, overlap (one node's state alone is latency-bound).
+#[allow(clippy::too_many_arguments)]
+pub fn bouc_wen_loads<const W: usize>(
+    force: &[f64],
+    r: f64,
+    knee: &Knee,
+    share: f64,
+    scs: [f64; W],
+    deadband: f64,
+    asym: f64,
+) -> [Vec<f64>; W] {
+    let r = r.max(1e-12);
+    let (beta, gamma) = (1.0 + asym, 1.0 - asym);
+    let (inv_r, inv_2r) = (1.0 / r, 0.5 / r);
+    let inv_sc = scs.map(|sc| 1.0 / sc);
+    let (mut z, mut u_prev, mut play) = ([0.0f64; W], [0.0f64; W], [0.0f64; W]);
+    let mut out: [Vec<f64>; W] = std::array::from_fn(|_| Vec::with_capacity(force.len()));
+    for &fi in force {
+        let l = fi.max(0.0);
+        for w in 0..W {
+            play[w] = play[w].clamp(l - deadband, l + deadband);
+            let u = play[w].max(0.0) * inv_sc[w];
+            let du = u - u_prev[w];
+            u_prev[w] = u;
+            let mut zw = z[w];
+            if du != 0.0 {
+                zw += du
+                    - (beta * du.abs() * zw + gamma * du * zw.abs())
+                        * knee.at(zw.abs() * inv_r)
+                        * inv_2r;
+            }
+            zw = zw.clamp(-r, r);
+            z[w] = zw;
+            out[w].push(fi + share * scs[w] * zw);
+        }
+    }
+    out
+}
+
 /// `x^(n-1)` on `0..=1`, tabulated (a `powf` per node and sample was most of an evaluation's
 /// time): linear interpolation between 1024 steps, exact for `n = 1` and `n = 2`.
 pub struct Knee {
@@ -149,6 +193,7 @@ impl Knee {
         }
     }
 
+    #[inline]
     fn at(&self, x: f64) -> f64 {
         let pos = x.clamp(0.0, 1.0) * Self::STEPS as f64;
         let j = (pos as usize).min(Self::STEPS - 1);
@@ -212,6 +257,29 @@ mod tests {
         }
         // Beyond the table's range it holds the end value.
         assert_eq!(Knee::new(3.0).at(1.5), 1.0);
+    }
+
+    #[test]
+    fn bouc_wen_states_run_side_by_side_match_each_run_alone() {
+        // Presses of several sizes with noise: every node's series bit for bit as alone.
+        let f: Vec<f64> = (0..4000)
+            .map(|i| {
+                let t = i as f64 * 0.01;
+                (3.0 * (t * 0.7).sin() + 2.5 * (t * 0.13).sin()).max(0.0)
+                    + 0.01 * ((i * 7) % 5) as f64
+            })
+            .collect();
+        let knee = Knee::new(2.3);
+        let scs = [1.0, 2.5, 7.0];
+        let together = bouc_wen_loads(&f, 0.4, &knee, 0.45, scs, 0.03, 0.3);
+        for (sc, got) in scs.iter().zip(&together) {
+            let alone: Vec<f64> = bouc_wen_load(&f, 0.4, &knee, 0.45, *sc, 0.03, 0.3).collect();
+            assert_eq!(got.len(), alone.len());
+            assert!(got
+                .iter()
+                .zip(&alone)
+                .all(|(a, b)| a.to_bits() == b.to_bits()));
+        }
     }
 
     #[test]

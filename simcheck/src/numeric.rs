@@ -81,19 +81,51 @@ pub fn centre_by_level_smooth(f: &[f64], mut x: Vec<f64>) -> Vec<f64> {
 }
 
 /// First-order low-pass of `x` sampled at intervals `dt` (the step factor is computed once per
-/// distinct interval).
+/// distinct interval, see [`StepFactors`]).
 pub fn lowpass(x: &[f64], dt: &[f64], tau: f64) -> Vec<f64> {
     let mut out = Vec::with_capacity(x.len());
     let mut s = x.first().copied().unwrap_or(0.0);
-    let mut step = (f64::NAN, 0.0);
+    let mut step = StepFactors::new(tau);
     for (i, &v) in x.iter().enumerate() {
-        if step.0 != dt[i] {
-            step = (dt[i], 1.0 - (-dt[i] / tau).exp());
-        }
-        s += (v - s) * step.1;
+        s += (v - s) * step.at(dt[i]);
         out.push(s);
     }
     out
+}
+
+/// A first-order low-pass's step factor `1 - exp(-dt / tau)` for one `tau`, kept for the last
+/// few distinct intervals. A recording's time stamps are decimals: its "even" intervals differ
+/// in the last bits (18 distinct values, changing every other sample, on a 10-minute recording
+/// at 100 Hz), so a single kept interval missed nearly half the time and each miss cost an
+/// `exp`. The factor is the same number however often it is computed.
+pub struct StepFactors {
+    tau: f64,
+    kept: [(f64, f64); Self::KEPT],
+    next: usize,
+}
+
+impl StepFactors {
+    const KEPT: usize = 8;
+
+    pub fn new(tau: f64) -> StepFactors {
+        StepFactors {
+            tau,
+            kept: [(f64::NAN, 0.0); Self::KEPT],
+            next: 0,
+        }
+    }
+
+    /// `1 - exp(-dt / tau)`.
+    #[inline]
+    pub fn at(&mut self, dt: f64) -> f64 {
+        if let Some(&(_, f)) = self.kept.iter().find(|(d, _)| *d == dt) {
+            return f;
+        }
+        let f = 1.0 - (-dt / self.tau).exp();
+        self.kept[self.next] = (dt, f);
+        self.next = (self.next + 1) % Self::KEPT;
+        f
+    }
 }
 
 /// Piecewise-linear interpolation weights of time `t` on `knots`.

@@ -231,7 +231,7 @@ pub fn fit(
             best = Some((s.clone(), v));
         }
     }
-    let Some((start, _)) = best else {
+    let Some((start, start_sse)) = best else {
         return Config::base(1.0, 0.0);
     };
     let x0: Vec<f64> = params.iter().map(|p| p.get(&start)).collect();
@@ -240,6 +240,11 @@ pub fn fit(
         let mut c = start.clone();
         for (p, v) in params.iter().zip(x) {
             p.set(&mut c, *v);
+        }
+        // The simplex's first point is the best start itself, already evaluated (unless its
+        // parameters do not survive the way to the search's coordinates and back unchanged).
+        if c == start {
+            return start_sse;
         }
         objective(&c)
     };

@@ -183,6 +183,7 @@ pub fn demo_pipeline(
         prefix: None,
         log: log.to_string(),
         layout: crate::pipeline::Layout::PerSensor,
+        realtime: None,
         supervision: Supervision::default(),
         controls: sensors
             .iter()

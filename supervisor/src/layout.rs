@@ -432,4 +432,41 @@ source = { kind = "serial", port = "/dev/null" }
             .collect();
         assert_eq!(seeds, ["5", "6", "7"]);
     }
+
+    #[test]
+    fn realtime_goes_to_every_hot_process_as_its_own_option() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let body = |layout: &str, realtime: &str| {
+            format!(
+                "layout = \"{layout}\"\n{realtime}\n[[latency]]\n[[control]]\nsensor = \"p0\"\n\
+                 [[sensor]]\nid = \"p\"\ncount = 2\ncalibration = \"cal.toml\"\n\
+                 curvature_m1 = 40\nsource = {{ kind = \"sim\" }}\n"
+            )
+        };
+        for layout in ["shared", "per-sensor"] {
+            let p = load(dir.path(), &body(layout, "realtime = 20")).expect(layout);
+            let procs = p.processes().expect("processes");
+            assert!(procs.len() >= 5, "{procs:?}");
+            for proc in &procs {
+                assert_eq!(value(&proc.args, "--realtime"), "20", "{proc:?}");
+                let at = proc.args.iter().position(|a| a == "--realtime");
+                let sub = proc.args.iter().position(|a| a == "sim" || a == "run");
+                match (proc.args[0].as_str(), sub) {
+                    ("publisher", Some(sub)) => assert!(at < Some(sub), "{proc:?}"),
+                    (_, Some(run)) => assert!(at > Some(run), "{proc:?}"),
+                    _ => {}
+                }
+            }
+            let p = load(dir.path(), &body(layout, "")).expect(layout);
+            let procs = p.processes().expect("processes");
+            assert!(procs
+                .iter()
+                .all(|p| !p.args.contains(&"--realtime".to_string())));
+            let e = format!(
+                "{:#}",
+                load(dir.path(), &body(layout, "realtime = 0")).expect_err("0")
+            );
+            assert!(e.contains("realtime = 0: must be 1 to 99"), "{e}");
+        }
+    }
 }

@@ -33,6 +33,10 @@ pub struct Pipeline {
     /// one of each for all sensors.
     #[serde(default)]
     pub layout: Layout,
+    /// Real-time priority (SCHED_FIFO, 1-99) of the publishers, estimators, calibrators,
+    /// control loops and latency probes (`--realtime`); none by default.
+    #[serde(default)]
+    pub realtime: Option<u8>,
     #[serde(default)]
     pub supervision: Supervision,
     #[serde(rename = "sensor")]
@@ -308,6 +312,9 @@ impl Pipeline {
     pub fn validate(&self) -> anyhow::Result<()> {
         let sv = &self.supervision;
         anyhow::ensure!(!self.sensors.is_empty(), "no [[sensor]]");
+        if let Some(r) = self.realtime {
+            anyhow::ensure!((1..=99).contains(&r), "realtime = {r}: must be 1 to 99");
+        }
         anyhow::ensure!(
             sv.backoff_initial_ms >= 1 && sv.backoff_initial_ms <= sv.backoff_max_ms,
             "supervision: need 1 <= backoff_initial_ms <= backoff_max_ms"
@@ -495,6 +502,20 @@ impl Pipeline {
         match self.layout {
             Layout::PerSensor => out.extend(self.per_sensor_processes()),
             Layout::Shared => out.extend(crate::layout::shared_processes(self)?),
+        }
+        if let Some(r) = self.realtime {
+            let hot = ["publisher", "estimator", "calibrator", "control", "latency"];
+            for p in out.iter_mut().filter(|p| hot.contains(&p.args[0].as_str())) {
+                // An option of the role (after `run`), before a publisher's source subcommand.
+                let at = if p.args.get(1).is_some_and(|a| a == "run") {
+                    2
+                } else {
+                    1
+                };
+                p.args
+                    .splice(at..at, [s("--realtime"), r.to_string()])
+                    .for_each(drop);
+            }
         }
         Ok(out)
     }

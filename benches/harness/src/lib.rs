@@ -499,9 +499,14 @@ fn run(a: Args) -> Result<(), Failure> {
 type Case = Box<dyn Fn(usize) -> anyhow::Result<CaseResult>>;
 
 /// Cases a run of every case leaves out (said on stderr): they run only when named in
-/// `--cases`. The per-process skin starts 193 processes, and the search for the largest skin
-/// runs up to nine skins of up to 2 048 sensors, minutes on a small machine.
-const ON_REQUEST: [&str; 2] = ["skin_64_sensors_per_process", "skin_max_sensors"];
+/// `--cases`. The per-process skin starts 193 processes, the search for the largest skin
+/// runs up to nine skins of up to 2 048 sensors, minutes on a small machine, and the
+/// real-time skin needs the right to real-time priority (root or CAP_SYS_NICE).
+const ON_REQUEST: [&str; 3] = [
+    "skin_64_sensors_per_process",
+    "skin_max_sensors",
+    "skin_64_sensors_realtime",
+];
 
 /// The output directory (named, or a fresh one under the temp dir, said on stderr) with the
 /// two calibrations the force-path cases serve: the shipped one, and the same with every
@@ -665,8 +670,23 @@ fn cases_table(secs: f64, rate: f64, cal_s: &str, dynamic_s: &str) -> Vec<(&'sta
                     shared: true,
                     secs,
                     rate,
+                    realtime: None,
                 };
                 move |n| skin::skin("skin_64_sensors", k, n, &c)
+            }),
+        ),
+        (
+            "skin_64_sensors_realtime",
+            Box::new({
+                let c = cal_s.clone();
+                let k = skin::Skin {
+                    sensors: 64,
+                    shared: true,
+                    secs,
+                    rate,
+                    realtime: Some(skin::REALTIME),
+                };
+                move |n| skin::skin("skin_64_sensors_realtime", k, n, &c)
             }),
         ),
         (
@@ -678,6 +698,7 @@ fn cases_table(secs: f64, rate: f64, cal_s: &str, dynamic_s: &str) -> Vec<(&'sta
                     shared: false,
                     secs,
                     rate,
+                    realtime: None,
                 };
                 move |n| skin::skin("skin_64_sensors_per_process", k, n, &c)
             }),

@@ -116,6 +116,9 @@ fn rss_kib(pid: u32) -> (u64, u64) {
     (kib("VmRSS:"), kib("RssAnon:"))
 }
 
+/// The real-time priority (SCHED_FIFO, 1-99) of `skin_64_sensors_realtime`'s processes.
+pub(crate) const REALTIME: u8 = 20;
+
 /// A skin case: how many sensors, in which layout.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Skin {
@@ -124,6 +127,8 @@ pub(crate) struct Skin {
     pub shared: bool,
     pub secs: f64,
     pub rate: f64,
+    /// Real-time priority of every process of the case, the probe's included (`--realtime`).
+    pub realtime: Option<u8>,
 }
 
 /// One measured process.
@@ -263,22 +268,32 @@ fn run_skin(
     let consumers = 2 * groups.len();
     let patience =
         Duration::from_secs_f64(10.0 + 0.2 * (3 * groups.len()) as f64 + 0.1 * k.sensors as f64);
+    let rt: Vec<String> = k
+        .realtime
+        .map(|r| vec![s("--realtime"), r.to_string()])
+        .unwrap_or_default();
+    let with_rt = |args: &[String]| [args, &rt].concat();
     start_role(
         procs,
         "calibrator",
         groups,
-        &[s("--calibration"), s(cal)],
+        &with_rt(&[s("--calibration"), s(cal)]),
         prefix,
     )?;
     start_role(
         procs,
         "estimator",
         groups,
-        &[s("--curvature-m1"), s("40")],
+        &with_rt(&[s("--curvature-m1"), s("40")]),
         prefix,
     )?;
     wait_nodes_for(prefix, consumers, patience);
-    let sim = [s("sim"), s("--rate-hz"), k.rate.to_string()];
+    // The publisher's own options come before its source's subcommand.
+    let sim = [
+        rt.clone(),
+        vec![s("sim"), s("--rate-hz"), k.rate.to_string()],
+    ]
+    .concat();
     start_publishers(procs, groups, &sim, prefix, patience)?;
     // The probe measures the streams once they flow, and skips its own joining (the
     // calibrators connect it to their force streams while they send).
@@ -297,6 +312,7 @@ fn run_skin(
         // A consumer of the whole skin, as the shared calibrator's group lets it wait.
         args.extend([s("--wake-group"), s(WAKE_GROUP)]);
     }
+    args.extend(rt.iter().cloned());
     let mut probe = taxel(&args, prefix)?;
     wait_nodes_for(prefix, consumers + groups.len() + 1, patience);
     std::thread::sleep(Duration::from_secs_f64(SKIP_S));
@@ -416,6 +432,7 @@ pub(crate) fn max_sensors(secs: f64, rate: f64, n: usize, cal: &str) -> anyhow::
             shared: true,
             secs,
             rate,
+            realtime: None,
         };
         match skin("skin_max_sensors", spec, 200 + n * 20 + k, cal) {
             Ok(r) => {

@@ -9,7 +9,9 @@
 mod flat;
 mod inorder;
 mod json;
+mod parts;
 mod read;
+mod unpack;
 mod walk;
 
 use std::collections::{BTreeMap, HashMap};
@@ -24,6 +26,7 @@ use crate::records::Record;
 
 use json::encode;
 pub use json::{json_schema, CURVATURE_SCHEMA, FORCE_SCHEMA, RAW_SCHEMA, REFERENCE_SCHEMA};
+pub use parts::for_each_view_parts;
 use read::for_each_message;
 
 /// Why an MCAP file could not be written or read.

@@ -1,8 +1,8 @@
 //! Reading the messages of an MCAP file in file order, each decoded as it is read: by the
 //! walker ([`super::walk`]), which reads taxel's files (and any file whose chunks are
-//! uncompressed) without a copy per message, else from where the walker stopped by the `mcap`
-//! crate's `MessageStream` (a compressed chunk: this build of the crate has no decompressor,
-//! so that is an error naming the compression). Both give the same messages and decode them
+//! uncompressed, `zstd` or `lz4`) without a copy per message, else from where the walker
+//! stopped by the `mcap` crate's `MessageStream` (a chunk of another compression: this build
+//! of the crate has no decompressor, so that is an error naming the compression). Both give the same messages and decode them
 //! the same way. (Decoding on two threads was tried and was slower: the `mcap` crate copies
 //! every record into new allocations, and freeing them on another thread contends on the
 //! allocator; see docs/python.md.)

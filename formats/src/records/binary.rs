@@ -102,14 +102,8 @@ impl Visitor for Encoder<'_> {
 
 /// Decodes one version-2 payload.
 pub(super) fn decode(payload: &[u8]) -> Result<Record, String> {
-    let (&kind, rest) = payload.split_first().ok_or("empty record")?;
-    let (&count, rest) = rest.split_first().ok_or("record without a field count")?;
-    let mut d = Decoder {
-        buf: rest,
-        pos: 0,
-        left: count as usize,
-        err: None,
-    };
+    let (kind, count, rest) = split(payload)?;
+    let mut d = Decoder::new(rest, count, None);
     let rec = match kind {
         0 => Record::Raw(Box::new(d.message::<RawFrame>())),
         1 => Record::Curvature(Box::new(d.message::<CurvatureEstimate>())),
@@ -117,15 +111,93 @@ pub(super) fn decode(payload: &[u8]) -> Result<Record, String> {
         3 => Record::Reference(d.message::<Reference>()),
         k => return Err(format!("unknown record kind {k}")),
     };
-    if let Some(e) = d.err {
+    d.finish()?;
+    Ok(rec)
+}
+
+/// The reader's own payload of each kind, refilled by [`decode_into`].
+#[derive(Default)]
+pub(super) struct Slots {
+    recs: [Option<Record>; 4],
+    /// Per kind: the longest array written into the payload so far (entries from there on
+    /// are still zero).
+    high: [usize; 4],
+    /// Per kind: the number of fields of this build's table (0 until first needed).
+    table: [usize; 4],
+    /// The kind decoded last.
+    last: usize,
+}
+
+impl Slots {
+    /// The payload decoded last.
+    pub(super) fn last(&mut self) -> Option<&mut Record> {
+        self.recs.get_mut(self.last)?.as_mut()
+    }
+
+    /// Keeps a record decoded whole (a version-1 file) as the payload of its kind.
+    pub(super) fn put(&mut self, rec: Record) -> &mut Record {
+        let k = kind(rec.stream()) as usize;
+        self.last = k;
+        // Not refilled in place: its arrays' high-water mark is unknown.
+        self.high[k] = usize::MAX;
+        self.recs[k].insert(rec)
+    }
+}
+
+/// Decodes one version-2 payload into `slots`' payload of its kind: the same value as
+/// [`decode`] (fields the record lacks read as the empty payload's, array entries past its
+/// length as zero), without a new payload, and a raw frame's 4 KiB reset, per record.
+pub(super) fn decode_into<'s>(
+    payload: &[u8],
+    slots: &'s mut Slots,
+) -> Result<&'s mut Record, String> {
+    let (kind, count, rest) = split(payload)?;
+    let k = kind as usize;
+    slots.last = k;
+    let slot = match slots.recs.get_mut(k) {
+        Some(slot) => slot,
+        None => return Err(format!("unknown record kind {kind}")),
+    };
+    let empty = || match kind {
+        0 => Record::Raw(Box::new(RawFrame::ZERO)),
+        1 => Record::Curvature(Box::new(CurvatureEstimate::ZERO)),
+        2 => Record::Force(ForceSample::ZERO),
+        _ => Record::Reference(Reference::ZERO),
+    };
+    let rec = slot.get_or_insert_with(empty);
+    if slots.table[k] == 0 {
+        slots.table[k] = match kind {
+            0 => taxel_msgs::fields::names::<RawFrame>().len(),
+            1 => taxel_msgs::fields::names::<CurvatureEstimate>().len(),
+            2 => taxel_msgs::fields::names::<ForceSample>().len(),
+            _ => taxel_msgs::fields::names::<Reference>().len(),
+        };
+    }
+    if (count as usize) < slots.table[k] {
+        // An older writer's record: the fields it lacks read as the empty payload's.
+        *rec = empty();
+        slots.high[k] = 0;
+    }
+    let mut d = Decoder::new(rest, count, Some(&mut slots.high[k]));
+    match rec {
+        Record::Raw(m) => m.visit(&mut d),
+        Record::Curvature(m) => m.visit(&mut d),
+        Record::Force(m) => m.visit(&mut d),
+        Record::Reference(m) => m.visit(&mut d),
+    }
+    if let Err(e) = d.finish() {
+        // A payload left half-written is not handed over, nor refilled.
+        *slot = None;
         return Err(e);
     }
-    // Fields this build does not know (a newer writer's) are skipped; otherwise every byte
-    // must have been used.
-    if d.left == 0 && d.pos != d.buf.len() {
-        return Err(super::TRAILING.into());
-    }
-    Ok(rec)
+    slot.as_mut().ok_or_else(|| "record slot lost".to_string())
+}
+
+/// A payload's kind byte, field count and fields.
+fn split(payload: &[u8]) -> Result<(u8, u8, &[u8]), String> {
+    let (&kind, rest) = payload.split_first().ok_or("empty record")?;
+    let (&count, rest) = rest.split_first().ok_or("record without a field count")?;
+    Ok((kind, count, rest))
 }
 
 struct Decoder<'a> {
@@ -134,13 +206,38 @@ struct Decoder<'a> {
     /// Fields the record still holds.
     left: usize,
     err: Option<String>,
+    /// Decoding into a reused payload: its longest array so far; array entries past the new
+    /// length (up to this) are cleared.
+    reuse: Option<&'a mut usize>,
 }
 
-impl Decoder<'_> {
+impl<'a> Decoder<'a> {
+    fn new(buf: &'a [u8], count: u8, reuse: Option<&'a mut usize>) -> Decoder<'a> {
+        Decoder {
+            buf,
+            pos: 0,
+            left: count as usize,
+            err: None,
+            reuse,
+        }
+    }
+
     fn message<M: Message>(&mut self) -> M {
         let mut m = M::zero();
         m.visit(self);
         m
+    }
+
+    /// The first error, or whether every byte was used. Fields this build does not know (a
+    /// newer writer's) are skipped; otherwise every byte must have been used.
+    fn finish(self) -> Result<(), String> {
+        if let Some(e) = self.err {
+            return Err(e);
+        }
+        if self.left == 0 && self.pos != self.buf.len() {
+            return Err(super::TRAILING.into());
+        }
+        Ok(())
     }
 
     /// Whether the next field is in the record (and nothing failed so far).
@@ -171,6 +268,33 @@ impl Decoder<'_> {
                 *v = x;
             }
         }
+    }
+
+    /// Reads an array into `v`; the number of entries read (0 when the record lacks it or it
+    /// does not decode).
+    fn array(&mut self, f: &Field, v: &mut [f32]) -> usize {
+        if !self.next() {
+            return 0;
+        }
+        let Some(n) = self.take::<u64>(f) else {
+            return 0;
+        };
+        if n > v.len() as u64 {
+            self.err
+                .get_or_insert(format!("{} has {n} entries (at most {})", f.name, v.len()));
+            return 0;
+        }
+        let n = n as usize;
+        // Floats are 4 little-endian bytes each in bincode's standard config.
+        let Some(bytes) = self.buf.get(self.pos..self.pos + 4 * n) else {
+            self.err.get_or_insert(format!("{}: cut short", f.name));
+            return 0;
+        };
+        for (x, b) in v.iter_mut().zip(bytes.chunks_exact(4)) {
+            *x = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+        }
+        self.pos += 4 * n;
+        n
     }
 }
 
@@ -216,25 +340,15 @@ impl Visitor for Decoder<'_> {
         self.set(f, v);
     }
     fn f32s(&mut self, f: &Field, v: &mut [f32], len: &mut usize) {
-        *len = 0;
-        if !self.next() {
-            return;
-        }
-        let Some(n) = self.take::<u64>(f) else {
-            return;
-        };
-        if n > v.len() as u64 {
-            self.err
-                .get_or_insert(format!("{} has {n} entries (at most {})", f.name, v.len()));
-            return;
-        }
-        for x in v.iter_mut().take(n as usize) {
-            match self.take::<f32>(f) {
-                Some(y) => *x = y,
-                None => return,
+        let n = self.array(f, v);
+        *len = n;
+        if let Some(high) = self.reuse.as_deref_mut() {
+            let top = (*high).min(v.len());
+            if n < top {
+                v[n..top].fill(0.0);
             }
+            *high = (*high).max(n);
         }
-        *len = n as usize;
     }
     fn invalid(&mut self, why: String) {
         self.err.get_or_insert(why);
@@ -332,5 +446,54 @@ mod tests {
         buf[5] = 3;
         let e = decode(&buf).expect_err("3 x 2 with 4 counts");
         assert!(e.contains("counts has 4 entries for rows x cols 6"), "{e}");
+    }
+
+    #[test]
+    fn decoding_into_a_reused_payload_gives_what_a_fresh_one_does() {
+        let f = force();
+        let full = encoded(&f);
+        let mut older = full[..full.len() - 5].to_vec();
+        older[1] -= 2;
+        let mut fewer = f;
+        fewer.n_blocks = 1;
+        fewer.block_force_n[..2].copy_from_slice(&[3.0, 0.0]);
+        fewer.block_reading[..2].copy_from_slice(&[4.0, 0.0]);
+        fewer.zero_age_s = 1.0;
+        let raw = |rows: u16, cols: u16| {
+            let mut r = RawFrame::ZERO;
+            (r.rows, r.cols, r.seq) = (rows, cols, rows as u64);
+            for (i, c) in r.counts[..(rows * cols) as usize].iter_mut().enumerate() {
+                *c = 1.0 + i as f32;
+            }
+            let mut buf = Vec::new();
+            encode(&r, &mut buf).expect("encode");
+            buf
+        };
+        // Arrays that shrink and grow again, and an older writer's record after a full one.
+        let payloads = [
+            full.clone(),
+            raw(4, 4),
+            encoded(&fewer),
+            raw(2, 3),
+            older,
+            raw(4, 4),
+            full,
+            raw(1, 1),
+        ];
+        let mut slots = Slots::default();
+        for (i, p) in payloads.iter().enumerate() {
+            let want = decode(p).expect("decode");
+            let got = decode_into(p, &mut slots).expect("decode_into");
+            assert!(same(got, &want), "payload {i}: {got:?}");
+            assert!(same(slots.last().expect("last"), &want), "payload {i}");
+        }
+        // A payload that fails is not handed over, and the next one decodes whole.
+        let mut bad = raw(2, 2);
+        bad[5] = 3;
+        assert!(decode_into(&bad, &mut slots).is_err());
+        let next = raw(1, 2);
+        let got = decode_into(&next, &mut slots).expect("after an error");
+        assert!(same(got, &decode(&next).expect("decode")));
+        assert!(decode_into(&[9, 0], &mut slots).is_err());
     }
 }

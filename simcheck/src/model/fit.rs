@@ -21,12 +21,14 @@ pub struct Observed {
     readings: std::sync::Arc<Readings>,
 }
 
-/// The reading in the residual domain, and whether it is usable, at the fit's samples node by
-/// node (the training SSE reads them; the full sample-major arrays are read at a stride that
-/// misses the cache). They depend on the samples only, so every [`Observed`] of the same
-/// samples shares them.
+/// The reading in the residual domain, the observed conductance, and whether it is usable, at
+/// the fit's samples node by node (the training SSE reads them, and [`Observed::new`] for every
+/// floor a search tries; the full sample-major arrays are read at a stride that misses the
+/// cache). They depend on the samples only, so every [`Observed`] of the same samples shares
+/// them.
 struct Readings {
     dom: Vec<f64>,
+    g: Vec<f64>,
     usable: Vec<bool>,
 }
 
@@ -34,16 +36,23 @@ impl Readings {
     fn new(ctx: &Context, fit_idx: &[usize]) -> Readings {
         let (n, m) = (ctx.ds.n, fit_idx.len());
         let mut dom = vec![0.0; m * n];
+        let mut g = vec![0.0; m * n];
         let mut usable = vec![false; m * n];
         for (j, &i) in fit_idx.iter().enumerate() {
             for k in 0..n {
                 dom[k * m + j] = ctx.dom_obs[i * n + k];
+                g[k * m + j] = ctx.g_obs[i * n + k];
                 usable[k * m + j] = ctx.usable[i * n + k];
             }
         }
-        Readings { dom, usable }
+        Readings { dom, g, usable }
     }
 }
+
+/// How many [`Observed`]s the context keeps; the least recently used goes (the whole
+/// recording's sample sets, read by the joins and the final fits, stay while the candidates'
+/// tests come and go).
+const OBSERVED_KEPT: usize = 8;
 
 /// What [`Observed`] depends on: the samples (their count, first and sum) and the floor and
 /// switch resistance it was undone through.
@@ -65,9 +74,13 @@ impl Observed {
             cfg.crosstalk.unwrap_or(0.0).to_bits(),
         );
         let mut readings = None;
-        if let Ok(cache) = ctx.observed.lock() {
-            if let Some((_, o)) = cache.iter().find(|(k, _)| *k == key) {
-                return o.clone();
+        if let Ok(mut cache) = ctx.observed.lock() {
+            // Least recently used first: a hit moves to the back.
+            if let Some(at) = cache.iter().position(|(k, _)| *k == key) {
+                let hit = cache.remove(at);
+                let o = hit.1.clone();
+                cache.push(hit);
+                return o;
             }
             let same_samples = |k: &ObservedKey| k.0 == key.0 && k.1 == key.1 && k.2 == key.2;
             readings = cache
@@ -78,7 +91,7 @@ impl Observed {
         let readings = readings.unwrap_or_else(|| std::sync::Arc::new(Readings::new(ctx, fit_idx)));
         let o = std::sync::Arc::new(Observed::new(ctx, cfg, fit_idx, readings));
         if let Ok(mut cache) = ctx.observed.lock() {
-            if cache.len() >= 8 {
+            if cache.len() >= OBSERVED_KEPT {
                 cache.remove(0);
             }
             cache.push((key, o.clone()));
@@ -93,32 +106,39 @@ impl Observed {
         readings: std::sync::Arc<Readings>,
     ) -> Observed {
         let ds = ctx.ds;
-        let n = ds.n;
+        let (n, m) = (ds.n, fit_idx.len());
         let r = cfg.floor();
         let rs = cfg.crosstalk.unwrap_or(0.0);
         let (rows, cols) = (ds.rows, ds.cols);
-        let mut g2 = vec![0.0; fit_idx.len() * n];
-        let mut wgt = vec![0.0; fit_idx.len() * n];
-        for (j, &i) in fit_idx.iter().enumerate() {
-            for row in 0..rows {
-                let base = i * n + row * cols;
-                let srow: f64 = if rs > 0.0 {
-                    ctx.g_obs[base..base + cols].iter().sum()
-                } else {
-                    0.0
-                };
-                let xf = (1.0 - rs * srow).max(0.05);
-                for c in 0..cols {
-                    let idx = base + c;
-                    let g1 = ctx.g_obs[idx] / xf;
+        let mut g2 = vec![0.0; m * n];
+        let mut wgt = vec![0.0; m * n];
+        let g = &readings.g;
+        for row in 0..rows {
+            // The row's crosstalk factor per sample (all 1 without crosstalk).
+            let xf: Vec<f64> = if rs > 0.0 {
+                (0..m)
+                    .map(|j| {
+                        let srow: f64 = (0..cols).map(|c| g[(row * cols + c) * m + j]).sum();
+                        (1.0 - rs * srow).max(0.05)
+                    })
+                    .collect()
+            } else {
+                Vec::new()
+            };
+            for c in 0..cols {
+                let k = row * cols + c;
+                for j in 0..m {
+                    let at = k * m + j;
+                    let xf = xf.get(j).copied().unwrap_or(1.0);
+                    // (Without crosstalk `xf` is 1: no division, the same number.)
+                    let g1 = if rs > 0.0 { g[at] / xf } else { g[at] };
                     let rg = r * g1;
-                    if !ctx.usable[idx] || rg >= 0.9 {
+                    if !readings.usable[at] || rg >= 0.9 {
                         continue;
                     }
-                    let out = (row * cols + c) * fit_idx.len() + j;
-                    g2[out] = g1 / (1.0 - rg);
-                    let d = ds.map.ddom_dg(ctx.g_obs[idx]) * xf * (1.0 - rg).powi(2);
-                    wgt[out] = d * d;
+                    g2[at] = g1 / (1.0 - rg);
+                    let d = ds.map.ddom_dg(g[at]) * xf * (1.0 - rg).powi(2);
+                    wgt[at] = d * d;
                 }
             }
         }
@@ -166,9 +186,10 @@ pub(super) struct NodeFit<'a> {
     /// The samples fitted on.
     pub(super) fit_idx: &'a [usize],
     pub(super) r: f64,
-    /// Every node's local regressors, when they are the same for every node (see
-    /// [`Terms::node_independent`]): computed once, not once per node.
-    pub(super) shared: Option<Arc<Locals>>,
+    /// Each group's local regressors, when nodes share them (see [`Terms::group`]; all nodes
+    /// one group when [`Terms::node_independent`]): computed once per group, not once per
+    /// node. Empty: each node computes its own.
+    pub(super) groups: Vec<Arc<Locals>>,
 }
 
 impl NodeFit<'_> {
@@ -191,7 +212,8 @@ impl NodeFit<'_> {
         };
         let mut th = vec![0.0; pdim];
         let base = k * self.fit_idx.len();
-        let locals = match &self.shared {
+        let shared = self.terms.group(k).and_then(|(g, _)| self.groups.get(g));
+        let locals = match shared {
             Some(l) => l.clone(),
             None => Arc::new(Locals::new(self.terms, k, self.fit_idx)),
         };
@@ -412,6 +434,37 @@ impl NodeFit<'_> {
 /// Adds one weighted observation `z` with regressors `xrow` to the lower triangle of the
 /// normal equations `a` and to `b`.
 fn accumulate(a: &mut [f64], b: &mut [f64], xrow: &[f64], w: f64, z: f64) {
+    // The usual sizes unrolled at compile time (the same sums in the same order).
+    match xrow.len() {
+        2 => accumulate_n::<2>(a, b, xrow, w, z),
+        3 => accumulate_n::<3>(a, b, xrow, w, z),
+        4 => accumulate_n::<4>(a, b, xrow, w, z),
+        5 => accumulate_n::<5>(a, b, xrow, w, z),
+        6 => accumulate_n::<6>(a, b, xrow, w, z),
+        _ => accumulate_any(a, b, xrow, w, z),
+    }
+}
+
+/// [`accumulate`] for `P` regressors.
+#[inline(always)]
+fn accumulate_n<const P: usize>(a: &mut [f64], b: &mut [f64], xrow: &[f64], w: f64, z: f64) {
+    let (Some(a), Some(b), Some(x)) = (a.get_mut(..P * P), b.get_mut(..P), xrow.get(..P)) else {
+        return accumulate_any(a, b, xrow, w, z);
+    };
+    for u in 0..P {
+        let xu = x[u];
+        if xu == 0.0 {
+            continue;
+        }
+        let wx = w * xu;
+        b[u] += wx * z;
+        for v in 0..=u {
+            a[u * P + v] += wx * x[v];
+        }
+    }
+}
+
+fn accumulate_any(a: &mut [f64], b: &mut [f64], xrow: &[f64], w: f64, z: f64) {
     let pdim = xrow.len();
     for u in 0..pdim {
         if xrow[u] == 0.0 {

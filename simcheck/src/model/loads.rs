@@ -4,7 +4,7 @@
 
 use crate::context::{Context, StateGrid};
 use crate::effects::Config;
-use crate::forms::{bouc_wen_load, load_series, Knee};
+use crate::forms::{bouc_wen_load, bouc_wen_loads, load_series, Knee};
 use crate::law::Law;
 use crate::numeric::PowTable;
 use crate::preisach::Preisach;
@@ -17,7 +17,10 @@ use crate::preisach::Preisach;
 /// see [`Context::state_stride`]); the series hold every sample of that grid, or, in the
 /// search (`compact`), only the samples the fit looks at, in order.
 pub(super) struct Loads {
+    /// The distinct load series (nodes with the same load scale read the same series).
     loads: Vec<Vec<f64>>,
+    /// Which series each node reads (empty: the first, for every node).
+    index: Vec<usize>,
     slopes: Vec<Vec<f64>>,
     skew: f64,
     settle: f64,
@@ -87,38 +90,72 @@ impl Loads {
             Preisach::new(ds.max_force(), h0, mu, sigma)
         });
         let r_max = ctx.hyst_r_max;
+        let mut index = Vec::new();
         let mut loads: Vec<Vec<f64>> = match (cfg.hysteresis.map(|r| r.min(r_max)), cfg.hyst_share)
         {
-            (Some(r), Some(share)) => crate::parallel::map(ctx.load_scale.len(), |k| {
-                let sc = ctx.load_scale[k];
-                if let Some(relays) = &relays {
-                    return grid.series(relays.load(&grid.force, share, sc), cfg, tau_max);
+            (Some(r), Some(share)) => {
+                // Nodes with the same load scale have the same load: one series each scale.
+                let mut scales: Vec<f64> = Vec::new();
+                for &sc in &ctx.load_scale {
+                    let at = scales.iter().position(|s| s.to_bits() == sc.to_bits());
+                    index.push(at.unwrap_or_else(|| {
+                        scales.push(sc);
+                        scales.len() - 1
+                    }));
                 }
-                if let Some(knee) = &knee {
-                    let f = bouc_wen_load(
-                        &grid.force,
-                        r,
-                        knee,
-                        share,
-                        sc,
-                        ctx.force_deadband,
-                        cfg.hyst_bw_asym,
-                    );
-                    return grid.series(f, cfg, tau_max);
-                }
-                // The two play operators of `play_gap`, run inline (no temporary series).
-                let (r1, r4) = (r * sc, 4.0 * r * sc);
-                let mut z: Option<(f64, f64)> = None;
-                let f = grid.force.iter().map(|&fi| {
-                    let l = fi.max(0.0);
-                    let (a, b) = z.map_or((l + r1, l + r4), |(a, b)| {
-                        (a.clamp(l - r1, l + r1), b.clamp(l - r4, l + r4))
+                let one = |sc: f64| -> Vec<f64> {
+                    if let Some(relays) = &relays {
+                        return grid.series(relays.load(&grid.force, share, sc), cfg, tau_max);
+                    }
+                    // The two play operators of `play_gap`, run inline (no temporary series).
+                    let (r1, r4) = (r * sc, 4.0 * r * sc);
+                    let mut z: Option<(f64, f64)> = None;
+                    let f = grid.force.iter().map(|&fi| {
+                        let l = fi.max(0.0);
+                        let (a, b) = z.map_or((l + r1, l + r4), |(a, b)| {
+                            (a.clamp(l - r1, l + r1), b.clamp(l - r4, l + r4))
+                        });
+                        z = Some((a, b));
+                        fi + share * ((a - l) + cfg.hyst_mix * (b - l))
                     });
-                    z = Some((a, b));
-                    fi + share * ((a - l) + cfg.hyst_mix * (b - l))
-                });
-                grid.series(f, cfg, tau_max)
-            }),
+                    grid.series(f, cfg, tau_max)
+                };
+                match &knee {
+                    // Bouc-Wen states four nodes at a time (see `bouc_wen_loads`).
+                    Some(knee) if relays.is_none() => {
+                        let chunks: Vec<&[f64]> = scales.chunks(4).collect();
+                        let bw = |scs: &[f64]| -> Vec<Vec<f64>> {
+                            let (f, db, asym) = (&grid.force, ctx.force_deadband, cfg.hyst_bw_asym);
+                            let states: Vec<Vec<f64>> = match *scs {
+                                [a, b, c, d] => {
+                                    bouc_wen_loads(f, r, knee, share, [a, b, c, d], db, asym).into()
+                                }
+                                [a, b, c] => {
+                                    bouc_wen_loads(f, r, knee, share, [a, b, c], db, asym).into()
+                                }
+                                [a, b] => {
+                                    bouc_wen_loads(f, r, knee, share, [a, b], db, asym).into()
+                                }
+                                _ => scs
+                                    .iter()
+                                    .map(|&sc| {
+                                        bouc_wen_load(f, r, knee, share, sc, db, asym).collect()
+                                    })
+                                    .collect(),
+                            };
+                            states
+                                .into_iter()
+                                .map(|v| grid.series(v.into_iter(), cfg, tau_max))
+                                .collect()
+                        };
+                        crate::parallel::map(chunks.len(), |c| bw(chunks[c]))
+                            .into_iter()
+                            .flatten()
+                            .collect()
+                    }
+                    _ => crate::parallel::map(scales.len(), |j| one(scales[j])),
+                }
+            }
             _ => vec![grid.series(grid.force.iter().copied(), cfg, tau_max)],
         };
         // The power law, p = L^n (a spline reads the load itself).
@@ -158,6 +195,7 @@ impl Loads {
         debug_assert!(compact || loads.iter().all(|p| p.len() == len.div_ceil(step)));
         Loads {
             loads,
+            index,
             slopes,
             skew,
             settle: cfg.scan_settle,
@@ -173,10 +211,21 @@ impl Loads {
         self.loads.len() == 1 && self.slopes.is_empty()
     }
 
+    /// The number of distinct load series, and whether a node's load is its series' alone (no
+    /// scan lag that differs by node).
+    pub(super) fn distinct(&self) -> (usize, bool) {
+        (self.loads.len(), self.slopes.is_empty())
+    }
+
+    /// Which of the distinct load series node `k` reads.
+    pub(super) fn series(&self, k: usize) -> usize {
+        self.index.get(k).copied().unwrap_or(0)
+    }
+
     /// The force-law term `p` (the power law) or the load (a spline) of node `k` at sample `i`
     /// (a multiple of `step`), the `jj`-th the fit looks at.
     pub(super) fn at(&self, k: usize, i: usize, jj: usize) -> f64 {
-        let j = k.min(self.loads.len() - 1);
+        let j = self.series(k);
         let i = if self.compact { jj } else { i / self.step };
         if self.slopes.is_empty() {
             self.loads[j][i]

@@ -123,9 +123,7 @@ fn evaluate_inner(
             obs: &obs,
             fit_idx: &fit_idx,
             r: cfg.floor(),
-            shared: terms
-                .node_independent()
-                .then(|| std::sync::Arc::new(Locals::new(&terms, 0, &fit_idx))),
+            groups: shared_locals(&terms, n, &fit_idx),
         };
         (theta, locals) = crate::parallel::map(n, |k| fit.node(k, &m))
             .into_iter()
@@ -168,6 +166,32 @@ fn evaluate_inner(
     }
 }
 
+/// The local regressors of each group of nodes that share them (see [`Terms::group`]): one set
+/// for all nodes when they read the same load, one per load series when fewer series than nodes
+/// (nodes with the same load scale); empty when every node has its own.
+fn shared_locals(terms: &Terms, n: usize, fit_idx: &[usize]) -> Vec<std::sync::Arc<Locals>> {
+    if terms.node_independent() {
+        return vec![std::sync::Arc::new(Locals::new(terms, 0, fit_idx))];
+    }
+    let Some((_, groups)) = terms.group(0) else {
+        return Vec::new();
+    };
+    if groups >= n {
+        return Vec::new();
+    }
+    // The first node of each group stands for it.
+    let first: Vec<usize> = (0..groups)
+        .map(|g| {
+            (0..n)
+                .find(|&k| terms.group(k).is_some_and(|(h, _)| h == g))
+                .unwrap_or(0)
+        })
+        .collect();
+    crate::parallel::map(groups, |g| {
+        std::sync::Arc::new(Locals::new(terms, first[g], fit_idx))
+    })
+}
+
 /// The thermal factor per sample from the recorded temperature, or all ones and the latent
 /// knots (fitted with the nodes) when the drift is latent.
 #[allow(clippy::type_complexity)]
@@ -180,10 +204,8 @@ fn thermal_factor(ctx: &Context, cfg: &Config) -> (Vec<f64>, Option<(Vec<f64>, V
         Some(Thermal::Recorded { alpha_per_k, tau_s }) => {
             if let Some(temp) = &ds.temp {
                 let t0 = temp.iter().sum::<f64>() / len as f64;
-                let mut dt: Vec<f64> = Vec::with_capacity(len);
-                dt.push(ds.dt());
-                dt.extend(ds.t.windows(2).map(|w| (w[1] - w[0]).max(1e-9)));
-                let ts = lowpass(temp, &dt, *tau_s);
+                // Every sample's interval, the first one step: the states' grid at step 1.
+                let ts = lowpass(temp, &ctx.state_grid(1).dt, *tau_s);
                 for (mi, t) in m.iter_mut().zip(&ts) {
                     *mi = (1.0 + alpha_per_k * (t - t0)).max(0.05);
                 }

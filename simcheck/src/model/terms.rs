@@ -78,6 +78,14 @@ impl Terms {
         self.loads.shared() && self.node_sens.is_empty()
     }
 
+    /// The group of nodes whose local regressors are node `k`'s too (the nodes reading the
+    /// same load series, when nothing else differs by node), and how many groups there are;
+    /// `None` when each node's are its own.
+    pub(super) fn group(&self, k: usize) -> Option<(usize, usize)> {
+        let (count, lag_free) = self.loads.distinct();
+        (lag_free && self.node_sens.is_empty()).then(|| (self.loads.series(k), count))
+    }
+
     /// Node `k`'s sensitivity factor at sample `i`.
     pub(super) fn s(&self, k: usize, i: usize) -> f64 {
         if self.node_sens.is_empty() {
