@@ -283,7 +283,7 @@ impl BridgeConfig {
 impl BridgeConfig {
     /// The lease, the reconnect period and open timeout, and the sockets' send buffers: a cut
     /// link costs the frames sent during it, and fresh frames flow again within about a
-    /// second after it returns (docs/bridge.md, "Over a real network").
+    /// second after it returns (docs/bridge.md, "When the link is cut").
     fn set_reconnection(&self, c: &mut zenoh::Config) -> Result<(), ConfigError> {
         let ms = |d: Duration| d.as_millis().to_string();
         set(c, "transport/link/tx/lease", &ms(self.lease))?;
