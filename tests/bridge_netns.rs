@@ -358,6 +358,7 @@ fn two_hosts_over_an_impaired_link_with_a_cut() {
     println!("  bridge A logged {sessions} change(s) of its peer count (3: the session closed after the lease and was opened again; 1: it survived the cut)");
     let b_in = b.last_line("in taxel/glove0/raw");
     println!("  bridge B: {}", b_in.trim());
+    println!("  bridge A: {}", a.last_line("out taxel/glove0/raw").trim());
     println!(
         "  link: {} packets carried, {} dropped at random, {} dropped in the cut",
         carried.carried, carried.dropped_at_random, carried.dropped_in_cut
@@ -545,6 +546,12 @@ fn compare_run(
     drop(publisher);
     drop(ipc_a);
     let (sa, sb) = (a.stop(), b.stop());
+    println!(
+        "  {kind}: bridge A {}; bridge B {}; gaps {:?}",
+        a.last_line("out taxel/glove0/raw").trim(),
+        b.last_line("in taxel/glove0/raw").trim(),
+        d.gaps
+    );
     assert!(
         sa.success(),
         "bridge A ({kind}): {sa}\n{}",
