@@ -11,7 +11,7 @@ use taxel_runtime::process::{exit_code, init_tracing, CommonArgs, Failure, Resul
 use taxel_runtime::Shutdown;
 
 use crate::certs::{CertsError, CertsSpec};
-use crate::config::BridgeConfig;
+use crate::config::{BridgeConfig, DEFAULT_LEASE};
 use crate::run::{run, BridgeError};
 use crate::tls::{RefusalLayer, TlsFiles};
 
@@ -65,6 +65,12 @@ pub struct Args {
     /// 33 Mbit/s uncompressed and about 1 Mbit/s compressed.
     #[arg(long)]
     pub no_compression: bool,
+    /// Close a session whose link has been silent this long (seconds; Zenoh's lease) and open
+    /// a new one: after a cut longer than this, fresh frames flow again about a second after
+    /// the link returns, and frames sent during the cut are lost (each hole is a seq gap). Both
+    /// bridges should use the same value.
+    #[arg(long, default_value_t = DEFAULT_LEASE.as_secs_f64())]
+    pub lease_s: f64,
     /// Log each stream's counts, losses and ages this often (seconds).
     #[arg(long, default_value_t = 5.0)]
     pub report_s: f64,
@@ -120,6 +126,7 @@ impl Args {
             run_for: self.seconds.map(|s| seconds("seconds", s)).transpose()?,
             insecure_listen: self.insecure_listen,
             compression: !self.no_compression,
+            lease: seconds("lease-s", self.lease_s)?,
             tls: TlsFiles::from_flags(
                 self.tls_cert.clone(),
                 self.tls_key.clone(),

@@ -32,6 +32,8 @@ pub enum ConfigError {
     Prefix(String, String),
     #[error("--{0} {1}: must be a positive number of seconds")]
     Seconds(&'static str, f64),
+    #[error("--lease-s {0}: give a lease between 0.1 and 3600 seconds")]
+    Lease(f64),
     #[error("{0} {1:?}: not a loopback address, and nothing authenticates the peers there, so anyone who reaches it could read and inject streams; listen on 127.0.0.1 or [::1], on tls/HOST:PORT with --tls-cert, --tls-key and --tls-ca, or add --insecure-listen to listen there anyway")]
     OpenListen(String, String),
     #[error("--tls-cert, --tls-key and --tls-ca go together: {0} missing")]
@@ -66,7 +68,37 @@ pub struct BridgeConfig {
     pub tls: Option<TlsFiles>,
     /// Compress the link's batches (LZ4; off with `--no-compression`).
     pub compression: bool,
+    /// How long a silent link keeps its session (`--lease-s`): after it, both bridges close
+    /// the session and the connecting one opens a new one (see [`RECONNECT_FIRST`]).
+    pub lease: Duration,
 }
+
+/// The default `--lease-s`. TCP alone resumes a session after a cut only at its next
+/// retransmission, and its back-off doubles from ~0.2 s: after a 3 s cut the next one may come
+/// 3 s after the link returned, and one of them lost (as on a lossy link) doubles that again. A
+/// session silent for longer than the lease is closed instead and a fresh connection opened.
+pub const DEFAULT_LEASE: Duration = Duration::from_millis(1500);
+
+/// Keep-alive messages per lease (Zenoh's default is 4): a peer that sends no data (the
+/// listening bridge, typically) proves it is alive this often, so a lost keep-alive or two on
+/// a lossy link does not end the session.
+pub const KEEP_ALIVES_PER_LEASE: u32 = 8;
+
+/// How often the connecting bridge tries to open a closed session again (Zenoh's connect retry
+/// period: from the first, doubling up to the second, so a peer that refuses us is not hammered
+/// and a returning link is found within half a second), and how long one attempt may take
+/// (Zenoh's open timeout: TCP resends a lost SYN after 1 s, and a TLS open over a slow link
+/// takes several round trips).
+pub const RECONNECT_FIRST: Duration = Duration::from_millis(250);
+pub const RECONNECT_MAX: Duration = Duration::from_millis(500);
+pub const OPEN_TIMEOUT: Duration = Duration::from_millis(2000);
+
+/// The kernel's send buffer of the link's socket. Left to autotuning it started near 64 KiB
+/// (`ss -m`; about half a second of compressed raw frames at 1 kHz), and what a TCP stall on
+/// a lossy link backs up beyond it lands in Zenoh's queue of 16 batches, which drops what it
+/// cannot queue within 20 ms. 4 MiB (the kernel may cap it at `net.core.wmem_max`) leaves the
+/// backlog to the kernel. Its effect alone was not measured.
+pub const SEND_BUFFER: u32 = 4 << 20;
 
 /// How often the link looks for new and vanished services on both sides.
 pub const DISCOVERY_EVERY: Duration = Duration::from_millis(100);
@@ -110,6 +142,10 @@ impl BridgeConfig {
         let s = self.report_every.as_secs_f64();
         if s <= 0.0 {
             return Err(ConfigError::Seconds("report-s", s));
+        }
+        let l = self.lease.as_secs_f64();
+        if !(0.1..=3600.0).contains(&l) {
+            return Err(ConfigError::Lease(l));
         }
         Ok(())
     }
@@ -229,6 +265,7 @@ impl BridgeConfig {
             "transport/unicast/compression/enabled",
             if self.compression { "true" } else { "false" },
         )?;
+        self.set_reconnection(&mut c)?;
         if let Some(f) = &self.tls {
             for (key, value) in tls::zenoh_settings(f) {
                 set(&mut c, key, &value)?;
@@ -241,6 +278,36 @@ impl BridgeConfig {
             set(&mut c, "connect/endpoints", &json_list(&self.connect))?;
         }
         Ok(c)
+    }
+
+    /// The lease, the reconnect period and open timeout, and the sockets' send buffers: a cut
+    /// link costs the frames sent during it, and fresh frames flow again within about a
+    /// second after it returns (docs/bridge.md, "When the link is cut").
+    fn set_reconnection(&self, c: &mut zenoh::Config) -> Result<(), ConfigError> {
+        let ms = |d: Duration| d.as_millis().to_string();
+        set(c, "transport/link/tx/lease", &ms(self.lease))?;
+        set(
+            c,
+            "transport/link/tx/keep_alive",
+            &KEEP_ALIVES_PER_LEASE.to_string(),
+        )?;
+        set(c, "transport/unicast/open_timeout", &ms(OPEN_TIMEOUT))?;
+        let (first, max) = (ms(RECONNECT_FIRST), ms(RECONNECT_MAX));
+        set(
+            c,
+            "connect/retry",
+            &format!(
+                "{{period_init_ms: {first}, period_max_ms: {max}, period_increase_factor: 2.0}}"
+            ),
+        )?;
+        for link in ["tcp", "tls"] {
+            set(
+                c,
+                &format!("transport/link/{link}/so_sndbuf"),
+                &SEND_BUFFER.to_string(),
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -354,6 +421,7 @@ mod tests {
             insecure_listen: false,
             tls: None,
             compression: true,
+            lease: DEFAULT_LEASE,
         }
     }
 
@@ -412,6 +480,34 @@ mod tests {
         c.connect = vec!["tcp/[::1]:7447".into(), "tcp/glove-pc.local:7447".into()];
         c.validate().expect("valid endpoints");
         c.zenoh().expect("zenoh accepts the endpoints");
+    }
+
+    #[test]
+    fn the_lease_reconnect_period_and_send_buffers_reach_zenoh() {
+        let mut c = cfg();
+        c.lease = Duration::from_millis(2500);
+        let z = c.zenoh().expect("zenoh");
+        let get = |k: &str| z.get_json(k).expect(k);
+        assert_eq!(get("transport/link/tx/lease"), "2500");
+        assert_eq!(get("transport/unicast/open_timeout"), "2000");
+        assert_eq!(get("transport/link/tx/keep_alive"), "8");
+        let retry = get("connect/retry");
+        assert!(retry.contains("\"period_init_ms\":250"), "{retry}");
+        assert!(retry.contains("\"period_max_ms\":500"), "{retry}");
+        assert!(retry.contains("\"period_increase_factor\":2.0"), "{retry}");
+        assert_eq!(
+            get("transport/link/tls/so_sndbuf"),
+            (4u32 << 20).to_string()
+        );
+        assert_eq!(
+            get("transport/link/tcp/so_sndbuf"),
+            (4u32 << 20).to_string()
+        );
+        for bad in [0.05, 4000.0] {
+            c.lease = Duration::from_secs_f64(bad);
+            let e = c.validate().expect_err("refused").to_string();
+            assert!(e.starts_with("--lease-s"), "{e}");
+        }
     }
 
     #[test]

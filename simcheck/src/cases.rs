@@ -121,8 +121,7 @@ pub fn run_cases(a: &CasesArgs) -> anyhow::Result<()> {
         a.out.join("cases.json"),
         serde_json::to_string_pretty(&rows_json)? + "\n",
     )?;
-    print!("{md}");
-    Ok(())
+    crate::cli::say(&md)
 }
 
 /// One family's table; its rows are added to `rows_json`.

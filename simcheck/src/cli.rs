@@ -149,10 +149,13 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<()> {
     crate::report::write_all(&a.out, &ds, &start, &d, &notes)?;
     if a.json {
         let text = std::fs::read_to_string(a.out.join("report.json"))?;
-        print!("{text}");
+        say(&text)?;
     } else {
-        println!("{}", summary(&ds, &d));
-        println!("report: {}", a.out.join("report.md").display());
+        say(&format!(
+            "{}\nreport: {}\n",
+            summary(&ds, &d),
+            a.out.join("report.md").display()
+        ))?;
     }
     Ok(())
 }
@@ -259,11 +262,22 @@ fn run_world(a: WorldArgs) -> anyhow::Result<()> {
         })?;
     }
     w.finish()?;
-    println!(
-        "wrote {} ({} samples, case {})",
+    say(&format!(
+        "wrote {} ({} samples, case {})\n",
         a.out.display(),
         rec.len(),
         case.name()
-    );
-    Ok(())
+    ))
+}
+
+/// Writes to stdout. A reader that stopped reading (`| head`) is not an error: the results
+/// are already in the output directory, and a panic there ("failed printing to stdout") would
+/// hide that.
+pub(crate) fn say(text: &str) -> anyhow::Result<()> {
+    use std::io::Write as _;
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        r => r.context("writing to stdout"),
+    }
 }

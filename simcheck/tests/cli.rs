@@ -132,3 +132,25 @@ fn a_diagnosis_writes_its_reports_and_a_loadable_model() {
     let md = std::fs::read_to_string(out_dir.join("report.md")).expect("report.md");
     assert!(md.starts_with("# Sim vs recording") && md.contains("## Findings"));
 }
+
+#[test]
+fn a_reader_that_stops_early_is_not_a_crash() {
+    // `taxel-simcheck world ... | head -0`: stdout is a pipe nobody reads. The recording is
+    // written, the exit is 0, and nothing panics ("failed printing to stdout").
+    let dir = tempfile::tempdir().expect("tempdir");
+    let rec = dir.path().join("null.csv");
+    let (reader, writer) = std::io::pipe().expect("pipe");
+    drop(reader);
+    let out = simcheck()
+        .args(["world", "--case", "null", "--seed", "3", "--seconds", "5"])
+        .arg("--out")
+        .arg(&rec)
+        .stdout(writer)
+        .stderr(std::process::Stdio::piped())
+        .output()
+        .expect("runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{:?}: {err}", out.status);
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(std::fs::metadata(&rec).expect("recording").len() > 0);
+}

@@ -24,7 +24,12 @@ use zenoh::sample::{Locality, Sample};
 use crate::inbox::Inbox;
 
 /// Frames a channel holds pending.
-const CAPACITY: usize = 64;
+///
+/// taxel: 4096, not the published 64. Over a lossy link TCP holds back everything behind a
+/// lost segment until its retransmission arrives, then hands it over at once: after a 100 ms
+/// stall a 1 kHz stream arrives as a burst of 100 frames, faster than the bridge publishes
+/// them, and a 64-frame inbox drops the rest (VENDORED.md).
+const CAPACITY: usize = 4096;
 
 #[derive(Debug, Eq, PartialEq, Clone, Copy)]
 pub enum ChannelError {
