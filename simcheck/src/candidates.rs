@@ -342,11 +342,32 @@ fn candidate_variants(
             .filter(|p| *p != Param::HystMix)
             .collect();
         p_pr.extend([Param::HystShare, Param::PreisMu, Param::PreisLnSigma]);
+        // The Bouc-Wen state on the total force, per node an amplitude (each node's own
+        // strength of hysteresis) and its growth with the load, started virgin or last
+        // unloaded.
+        let additive_bw: Vec<Config> = starts
+            .iter()
+            .filter(|s| s.hyst_mix == 0.0)
+            .flat_map(|s| {
+                [0.0, -1.0].map(|z0| Config {
+                    hyst_bouc_wen: true,
+                    hyst_bw_z0: z0,
+                    ..s.clone()
+                })
+            })
+            .collect();
+        let mut p_abw: Vec<Param> = params
+            .iter()
+            .copied()
+            .filter(|p| *p != Param::HystMix)
+            .collect();
+        p_abw.extend([Param::HystLnN, Param::HystAsym, Param::HystZ0]);
         return vec![
             (starts, params),
             (in_load, p_load),
             (bouc_wen, p_bw),
             (preisach, p_pr),
+            (additive_bw, p_abw),
         ];
     }
     if e == EffectKind::ThermalDrift && ctx.ds.temp.is_some() {
@@ -397,6 +418,9 @@ pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
         EffectKind::Creep => (2 * cfg.creep.as_ref().map_or(2, Vec::len), 0),
         // In the load path: half-width, mix and share; or Bouc-Wen saturation, exponent, share;
         // or Preisach half-width, centre, spread and share.
+        // The additive Bouc-Wen: saturation, exponent, asymmetry and start state, and per
+        // node an amplitude and its growth with the load.
+        EffectKind::Hysteresis if cfg.hyst_bouc_wen && cfg.hyst_share.is_none() => (4, 2),
         EffectKind::Hysteresis if cfg.hyst_preisach || cfg.hyst_bouc_wen => (4, 0),
         EffectKind::Hysteresis if cfg.hyst_share.is_some() => (3, 0),
         EffectKind::Hysteresis => (2, 1),
@@ -464,9 +488,25 @@ mod tests {
         // global share (charged three global parameters and none per node), or a Bouc-Wen
         // state in the load path (saturation, share and exponent instead of the plays' mix).
         let hyst = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Hysteresis);
-        assert_eq!(hyst.len(), 4);
+        assert_eq!(hyst.len(), 5);
         let (additive, in_load, bouc_wen) = (&hyst[0], &hyst[1], &hyst[2]);
         let preisach = &hyst[3];
+        // The additive Bouc-Wen: its start state searched, virgin and unloaded starts, two
+        // amplitudes per node.
+        let additive_bw = &hyst[4];
+        assert!(additive_bw
+            .0
+            .iter()
+            .all(|c| c.hyst_bouc_wen && c.hyst_share.is_none()));
+        assert!(additive_bw.0.iter().any(|c| c.hyst_bw_z0 == -1.0));
+        assert!(additive_bw.1.contains(&Param::HystZ0) && !additive_bw.1.contains(&Param::HystMix));
+        assert_eq!(
+            n_params(&additive_bw.0[0], EffectKind::Hysteresis),
+            ParamCount {
+                global: 4,
+                per_node: 2
+            }
+        );
         assert!(preisach
             .0
             .iter()

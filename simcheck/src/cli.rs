@@ -70,7 +70,8 @@ pub struct CasesArgs {
     /// Only these cases (slugs, comma-separated); default all of each family's.
     #[arg(long)]
     pub only: Option<String>,
-    /// Families of worlds (comma-separated: reference, zoo-log, zoo-sat, zoo-pow, zoo-amp; or all);
+    /// Families of worlds (comma-separated: reference, zoo-log, zoo-sat, zoo-pow, zoo-amp,
+    /// zoo-hys; or all);
     /// default the reference world.
     #[arg(long, default_value = "reference")]
     pub family: String,
@@ -81,7 +82,7 @@ pub struct WorldArgs {
     /// Case slug (null, creep, hysteresis, thermal_recorded, ...).
     #[arg(long)]
     pub case: String,
-    /// Family of worlds (reference, zoo-log, zoo-sat, zoo-pow, zoo-amp).
+    /// Family of worlds (reference, zoo-log, zoo-sat, zoo-pow, zoo-amp, zoo-hys).
     #[arg(long, default_value = "reference")]
     pub family: String,
     #[arg(long, default_value_t = 1)]

@@ -187,6 +187,7 @@ pub fn diagnose_with(
         }
     }
     let sp = crate::timing::span("backward pass");
+    sel.recheck_crosstalk();
     let mut contributions = sel.backward();
     drop(sp);
     let sp = crate::timing::span("final model, SIM.toml law, findings");

@@ -101,6 +101,11 @@ pub struct Config {
     /// saturates at `r` while loading and unloading approach it at different rates (beta and
     /// gamma of the textbook form, `beta + gamma = 1`).
     pub hyst_bw_asym: f64,
+    /// The additive Bouc-Wen form (`hyst_bouc_wen` without `hyst_share`, see
+    /// [`crate::forms::bouc_wen_gap`]): the state at the recording's start as a fraction of its
+    /// saturation, -1..=1 (0: the virgin state; -1: last unloaded from a large load). A
+    /// recording starts with whatever history the sensor had.
+    pub hyst_bw_z0: f64,
     /// In-load hysteresis as a Preisach model instead (see [`crate::preisach`]): relays on the
     /// node's own load, half-widths around `hysteresis` (N), centres around `preis_mu` (N)
     /// with sd `preis_sigma` (N); the share is `hyst_share`.
@@ -150,6 +155,7 @@ impl Config {
             hyst_bouc_wen: false,
             hyst_bw_n: 1.0,
             hyst_bw_asym: 0.0,
+            hyst_bw_z0: 0.0,
             hyst_preisach: false,
             preis_mu: 0.0,
             preis_sigma: 1.0,
@@ -206,6 +212,7 @@ impl Config {
                 c.hyst_bouc_wen = false;
                 c.hyst_bw_n = 1.0;
                 c.hyst_bw_asym = 0.0;
+                c.hyst_bw_z0 = 0.0;
                 c.hyst_preisach = false;
             }
             EffectKind::ThermalDrift => {
@@ -245,6 +252,7 @@ impl Config {
                 c.hyst_bouc_wen = from.hyst_bouc_wen;
                 c.hyst_bw_n = from.hyst_bw_n;
                 c.hyst_bw_asym = from.hyst_bw_asym;
+                c.hyst_bw_z0 = from.hyst_bw_z0;
                 c.hyst_preisach = from.hyst_preisach;
                 c.preis_mu = from.preis_mu;
                 c.preis_sigma = from.preis_sigma;

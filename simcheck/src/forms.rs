@@ -77,10 +77,26 @@ pub fn bouc_wen_load<'a>(
     deadband: f64,
     asym: f64,
 ) -> impl Iterator<Item = f64> + 'a {
+    bouc_wen_states(force, r, knee, sc, deadband, asym, 0.0)
+        .zip(force)
+        .map(move |(z, &fi)| fi + share * sc * z)
+}
+
+/// The Bouc-Wen state `z` (see [`bouc_wen_load`]) on the load `u = play_eps(F) / sc`,
+/// saturating at `r`, started at `z0` (clamped to `-r..=r`).
+fn bouc_wen_states<'a>(
+    force: &'a [f64],
+    r: f64,
+    knee: &'a Knee,
+    sc: f64,
+    deadband: f64,
+    asym: f64,
+    z0: f64,
+) -> impl Iterator<Item = f64> + 'a {
     let r = r.max(1e-12);
     let (beta, gamma) = (1.0 + asym, 1.0 - asym);
     let (inv_sc, inv_r, inv_2r) = (1.0 / sc, 1.0 / r, 0.5 / r);
-    let (mut z, mut u_prev, mut play) = (0.0f64, 0.0f64, 0.0f64);
+    let (mut z, mut u_prev, mut play) = (z0.clamp(-r, r), 0.0f64, 0.0f64);
     force.iter().map(move |&fi| {
         let l = fi.max(0.0);
         play = play.clamp(l - deadband, l + deadband);
@@ -92,8 +108,31 @@ pub fn bouc_wen_load<'a>(
                 - (beta * du.abs() * z + gamma * du * z.abs()) * knee.at(z.abs() * inv_r) * inv_2r;
         }
         z = z.clamp(-r, r);
-        fi + share * sc * z
+        z
     })
+}
+
+/// The additive Bouc-Wen terms (series shared by every node, amplitudes per node): the state
+/// `z` of [`bouc_wen_load`] on the total force (saturating at `r` newtons, exponent of `knee`,
+/// asymmetry `asym`), started at `z0 r` (a recording starts with whatever history the sensor
+/// had, not always the virgin state), and `z F / F_max`. With a fixed load map every node's
+/// own load is the total force times its share, so one state on the total force serves every
+/// node; its two amplitudes carry the node's strength of hysteresis and how its loop grows
+/// with the load (a loop that widens at higher loads; the node's law's slope, which a loop in
+/// the load path is seen through).
+pub fn bouc_wen_gap(
+    force: &[f64],
+    r: f64,
+    knee: &Knee,
+    deadband: f64,
+    asym: f64,
+    z0: f64,
+) -> (Vec<f64>, Vec<f64>) {
+    let fmax = force.iter().fold(0.0f64, |a, &b| a.max(b)).max(1e-12);
+    bouc_wen_states(force, r, knee, 1.0, deadband, asym, z0 * r)
+        .zip(force)
+        .map(|(z, &fi)| (z, z * fi.max(0.0) / fmax))
+        .unzip()
 }
 
 /// [`bouc_wen_load`] for `W` nodes at once (their scales `scs`), written out in full: the same
@@ -257,6 +296,27 @@ mod tests {
         let (sym, fast, slow) = (z(0.0), z(0.5), z(-0.5));
         assert!(fast < sym && sym < slow, "{fast} {sym} {slow}");
         assert!([fast, sym, slow].iter().all(|v| v.abs() <= 0.5 + 1e-12));
+    }
+
+    #[test]
+    fn the_additive_bouc_wen_starts_where_it_is_told_and_grows_with_the_load() {
+        // Rest, a ramp to 10 N and back to rest.
+        let mut f = vec![0.0; 10];
+        f.extend((0..=100).map(|i| i as f64 * 0.1));
+        f.extend((0..=100).rev().map(|i| i as f64 * 0.1));
+        let knee = Knee::new(1.0);
+        let (virgin, _) = bouc_wen_gap(&f, 1.0, &knee, 0.0, 0.0, 0.0);
+        let (unloaded, zu) = bouc_wen_gap(&f, 1.0, &knee, 0.0, 0.0, -1.0);
+        // At rest before the press: 0 for the virgin state, -r for a sensor last unloaded.
+        assert_eq!(virgin[5], 0.0);
+        assert_eq!(unloaded[5], -1.0);
+        // Both saturate near +r at the top and fall back toward -r after unloading.
+        let top = 10 + 100;
+        assert!(virgin[top] > 0.99 && unloaded[top] > 0.99);
+        assert!(unloaded[f.len() - 1] < -0.99);
+        // The second term is z F / F_max: the state itself at the top, nothing at rest.
+        assert!((zu[top] - unloaded[top]).abs() < 1e-12);
+        assert_eq!(zu[5], 0.0);
     }
 
     #[test]

@@ -62,6 +62,10 @@ pub fn effect_params(
                     p.insert("saturation_n".into(), r);
                     p.insert("exponent".into(), cfg.hyst_bw_n);
                     p.insert("asymmetry".into(), cfg.hyst_bw_asym);
+                    if cfg.hyst_share.is_none() {
+                        p.insert("additive".into(), 1.0);
+                        p.insert("start_state".into(), cfg.hyst_bw_z0);
+                    }
                 } else {
                     p.insert("threshold_n".into(), r);
                     p.insert("mix".into(), cfg.hyst_mix);
@@ -195,7 +199,13 @@ pub fn hysteresis_weight(ds: &Dataset, cfg: &Config, theta: &[Vec<f64>]) -> f64 
         .filter(|t| t.len() >= 3 && t[t.len() - 1] > 0.2 * amax && amax > 0.0)
         .map(|t| {
             let a = t[t.len() - 1];
-            let h = t[t.len() - 2] * (1.0 + cfg.hyst_mix);
+            // The additive Bouc-Wen's two amplitudes (on z and on z F / F_max) at the mean
+            // loaded force.
+            let h = if cfg.hyst_bouc_wen && t.len() >= 4 {
+                t[t.len() - 3] + t[t.len() - 2] * fbar / fmax.max(1e-9)
+            } else {
+                t[t.len() - 2] * (1.0 + cfg.hyst_mix)
+            };
             h / (a * cfg.exponent * fbar.max(1e-9).powf(cfg.exponent - 1.0))
         })
         .collect();

@@ -36,6 +36,50 @@ pub fn centre_by_level(f: &[f64], mut x: Vec<f64>) -> Vec<f64> {
     x
 }
 
+/// `x` minus a smooth function of the force: its mean over samples with about the same force
+/// (32 force bins), interpolated linearly between the bins' mean forces. Unlike
+/// [`centre_by_level`]'s staircase, what is taken out is a function a smooth static law can
+/// carry, so a large term centred this way leaves no steps for the law to miss.
+pub fn centre_by_level_smooth(f: &[f64], mut x: Vec<f64>) -> Vec<f64> {
+    const BINS: usize = 32;
+    let fmax = f.iter().cloned().fold(0.0, f64::max).max(1e-12);
+    let bin = |v: f64| (((v.max(0.0) / fmax) * BINS as f64) as usize).min(BINS - 1);
+    let (mut sx, mut sf, mut cnt) = ([0.0f64; BINS], [0.0f64; BINS], [0usize; BINS]);
+    for (fi, xi) in f.iter().zip(&x) {
+        let b = bin(*fi);
+        sx[b] += xi;
+        sf[b] += fi.max(0.0);
+        cnt[b] += 1;
+    }
+    // (mean force, mean x) of each bin that holds samples, in order of force.
+    let pts: Vec<(f64, f64)> = (0..BINS)
+        .filter(|&b| cnt[b] > 0)
+        .map(|b| (sf[b] / cnt[b] as f64, sx[b] / cnt[b] as f64))
+        .collect();
+    if pts.is_empty() {
+        return x;
+    }
+    for (fi, xi) in f.iter().zip(x.iter_mut()) {
+        let v = fi.max(0.0);
+        let j = pts.partition_point(|p| p.0 < v);
+        let m = if j == 0 {
+            pts[0].1
+        } else if j == pts.len() {
+            pts[j - 1].1
+        } else {
+            let (a, b) = (pts[j - 1], pts[j]);
+            let w = if b.0 > a.0 {
+                (v - a.0) / (b.0 - a.0)
+            } else {
+                0.0
+            };
+            a.1 + w * (b.1 - a.1)
+        };
+        *xi -= m;
+    }
+    x
+}
+
 /// First-order low-pass of `x` sampled at intervals `dt` (the step factor is computed once per
 /// distinct interval, see [`StepFactors`]).
 pub fn lowpass(x: &[f64], dt: &[f64], tau: f64) -> Vec<f64> {
@@ -256,6 +300,43 @@ impl PowTable {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn smooth_centring_takes_out_a_smooth_law_and_keeps_a_loop() {
+        // Up and down ramps 0..10 N: a term linear in the force plus a loop (+1 loading,
+        // -1 unloading).
+        let mut f = Vec::new();
+        let mut loop_part = Vec::new();
+        for _ in 0..3 {
+            for i in 0..=200 {
+                f.push(i as f64 * 0.05);
+                loop_part.push(1.0);
+            }
+            for i in (0..200).rev() {
+                f.push(i as f64 * 0.05);
+                loop_part.push(-1.0);
+            }
+        }
+        let x: Vec<f64> = f
+            .iter()
+            .zip(&loop_part)
+            .map(|(v, l)| 0.7 * v + 2.0 + l)
+            .collect();
+        let smooth = centre_by_level_smooth(&f, x.clone());
+        let stair = centre_by_level(&f, x);
+        // What is left is the loop: within the bins' inner range the linear law is gone
+        // exactly; the staircase leaves steps of up to half a bin's slope.
+        let err = |c: &[f64]| {
+            c.iter()
+                .zip(&f)
+                .zip(&loop_part)
+                .filter(|((_, v), _)| **v > 0.5 && **v < 9.5)
+                .map(|((c, _), l)| (c - l).abs())
+                .fold(0.0, f64::max)
+        };
+        assert!(err(&smooth) < 0.02, "{}", err(&smooth));
+        assert!(err(&stair) > 0.05, "{}", err(&stair));
+    }
 
     #[test]
     fn the_tabulated_power_matches_powf() {

@@ -5,14 +5,66 @@
 //! its coupling along the rows the readout switches. So the same droop is also fitted along
 //! the columns, on the recording transposed; crosstalk is accepted only when the rows beat the
 //! columns by the acceptance rule (no parameter more), as the readout's physics says they
-//! must.
+//! must. Crosstalk is decided in round 0, before any dynamic effect: when one joins later,
+//! the rows are held against the columns once more with it in the model, since what a loop
+//! the static law cannot follow leaves may have been what the rows fitted better.
 
 use crate::candidates::{candidates, ParamCount};
 use crate::context::Context;
 use crate::cv::{compare, cross_validate, Cv, Verdict};
 use crate::data::Dataset;
+use crate::diagnose::Trial;
 use crate::effects::{Config, EffectKind};
 use crate::noise::NoiseModel;
+use crate::search::{all_params, fit_all, refit_params};
+use crate::selection::Selection;
+
+impl Selection<'_> {
+    /// Before the backward pass: when crosstalk was named in round 0 and a dynamic effect
+    /// joined since, the rows are held against the same droop along the columns again, every
+    /// other effect in the model (the backward pass never holds round 0's static effects out).
+    /// Crosstalk goes when the rows no longer beat the columns (recorded in `backward` as
+    /// `crosstalk (rows against the columns, final effects)`).
+    pub(crate) fn recheck_crosstalk(&mut self) {
+        let ctx = self.ctx;
+        let dynamic_joined = self
+            .cur
+            .effects()
+            .iter()
+            .any(|e| !self.fixed.contains_key(e));
+        if !self.fixed.contains_key(&EffectKind::Crosstalk) || !dynamic_joined {
+            return;
+        }
+        let minus = self.cur.without(EffectKind::Crosstalk);
+        let columns = column_crosstalk(ctx, &minus, self.ev_n);
+        let v = rows_beat_columns(ctx, &self.noise, &columns, &self.cur_cv);
+        self.backward.push(Trial {
+            round: self.trials.iter().map(|t| t.round).max().unwrap_or(0),
+            effect: "crosstalk (rows against the columns, final effects)".into(),
+            verdict: v,
+            seconds: 0.0,
+            screened: false,
+        });
+        if v.accepted {
+            return;
+        }
+        let has_kappa = ctx.ds.kappa.is_some();
+        self.cur_cv = cross_validate(
+            ctx,
+            std::slice::from_ref(&minus),
+            &refit_params(&minus, has_kappa),
+            self.ev_n,
+        );
+        self.cur = fit_all(
+            ctx,
+            std::slice::from_ref(&minus),
+            &all_params(&minus, has_kappa),
+            self.ev_n * 2,
+        );
+        self.fixed.remove(&EffectKind::Crosstalk);
+        self.last = None;
+    }
+}
 
 /// `ds` transposed (rows and columns swapped, nodes renumbered column-major), with each new
 /// node's old index.

@@ -36,6 +36,8 @@ pub enum Case {
     /// Creep and thermal drift (temperature logged): a case of the zoo families (not in the
     /// reference world's `ALL`).
     CreepThermal,
+    /// Creep and hysteresis at once (the zoo families; world B has such a recording).
+    CreepHysteresis,
 }
 
 impl Case {
@@ -58,7 +60,11 @@ impl Case {
 
     /// Cases outside the proof table, run only by name (`--only`): forms the tool is known to
     /// fit poorly, kept so that the limits stated in docs/simcheck.md can be reproduced.
-    pub const EXTRA: [Case; 2] = [Case::HysteresisPreisach, Case::CreepThermal];
+    pub const EXTRA: [Case; 3] = [
+        Case::HysteresisPreisach,
+        Case::CreepThermal,
+        Case::CreepHysteresis,
+    ];
 
     /// The cases every family of worlds runs (the zoo, see `crate::zoo`): none, each effect
     /// alone, two at once, a broken thread and a distractor.
@@ -91,6 +97,7 @@ impl Case {
             Case::Distractor => "distractor: slow temp_c with no effect",
             Case::HysteresisPreisach => "hysteresis, Preisach relays (outside the table)",
             Case::CreepThermal => "creep + thermal_drift",
+            Case::CreepHysteresis => "creep + hysteresis",
         }
     }
 
@@ -113,6 +120,7 @@ impl Case {
             Case::Creep => ("explained", &["creep"]),
             Case::Hysteresis | Case::HysteresisPreisach => ("explained", &["hysteresis"]),
             Case::CreepThermal => ("explained", &["creep", "thermal_drift"]),
+            Case::CreepHysteresis => ("explained", &["creep", "hysteresis"]),
             Case::ThermalRecorded | Case::ThermalHidden => ("explained", &["thermal_drift"]),
             Case::CurvatureSensitivity => ("explained", &["curvature_sensitivity"]),
             Case::CurvatureBaseline => ("explained", &["curvature_baseline"]),
@@ -390,7 +398,10 @@ fn local_load(
     preisach: &Preisach,
     st: &mut NodeState,
 ) -> f64 {
-    let hyst = matches!(case, Case::Hysteresis | Case::TwoEffects);
+    let hyst = matches!(
+        case,
+        Case::Hysteresis | Case::TwoEffects | Case::CreepHysteresis
+    );
     let skew = if case == Case::ScanSkew {
         0.0006 * k as f64
     } else {
@@ -422,7 +433,10 @@ fn local_load(
         f += 0.45 * 0.25 * preisach.step(&mut st.relays, f);
     }
     st.f_prev = f_total * w_k;
-    if matches!(case, Case::Creep | Case::CreepThermal) {
+    if matches!(
+        case,
+        Case::Creep | Case::CreepThermal | Case::CreepHysteresis
+    ) {
         // Log-time creep: equal relaxations per decade of time, 0.3 s to 300 s, about
         // 1.5 % of the load per decade.
         let mut extra = 0.0;

@@ -18,6 +18,7 @@ pub enum Param {
     HystShare,
     HystLnN,
     HystAsym,
+    HystZ0,
     PreisMu,
     PreisLnSigma,
     ThermAlpha,
@@ -45,6 +46,7 @@ impl Param {
             Param::HystShare => c.hyst_share.unwrap_or(0.0),
             Param::HystLnN => c.hyst_bw_n.ln(),
             Param::HystAsym => c.hyst_bw_asym,
+            Param::HystZ0 => c.hyst_bw_z0,
             Param::PreisMu => c.preis_mu,
             Param::PreisLnSigma => c.preis_sigma.max(1e-9).ln(),
             Param::ThermAlpha => match &c.thermal {
@@ -90,6 +92,7 @@ impl Param {
             }
             Param::HystLnN => c.hyst_bw_n = v.clamp(0.5f64.ln(), 4f64.ln()).exp(),
             Param::HystAsym => c.hyst_bw_asym = v.clamp(-0.9, 0.9),
+            Param::HystZ0 => c.hyst_bw_z0 = v.clamp(-1.0, 1.0),
             Param::PreisMu => c.preis_mu = v.clamp(-50.0, 500.0),
             Param::PreisLnSigma => c.preis_sigma = v.clamp(-8.0, 8.0).exp(),
             Param::ThermAlpha => {
@@ -117,6 +120,7 @@ impl Param {
             Param::HystShare => 0.1,
             Param::HystLnN => 0.3,
             Param::HystAsym => 0.3,
+            Param::HystZ0 => 0.5,
             Param::PreisMu => 1.0,
             Param::CurvBeta => 0.5,
             Param::LnExponent => 0.05,
@@ -307,6 +311,9 @@ pub fn all_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
         } else {
             if cfg.hyst_bouc_wen {
                 p.extend([Param::HystLnN, Param::HystAsym]);
+                if cfg.hyst_share.is_none() {
+                    p.push(Param::HystZ0);
+                }
             } else {
                 p.push(Param::HystMix);
             }

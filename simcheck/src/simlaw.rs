@@ -19,13 +19,16 @@ pub fn power_summary(
     ev: &crate::model::Eval,
     ev_n: usize,
 ) -> (Config, Vec<Vec<f64>>) {
-    let asymmetric = cur.hyst_bouc_wen && cur.hyst_bw_asym != 0.0;
+    let asymmetric = cur.hyst_bouc_wen && cur.hyst_share.is_some() && cur.hyst_bw_asym != 0.0;
     if cur.law == Law::Power && !asymmetric {
         return (cur.clone(), ev.theta.clone());
     }
+    // Only the load-path loop is written to SIM.toml as a Bouc-Wen, so only its asymmetry goes.
+    // The additive Bouc-Wen is written as play operators sized from the model's own response,
+    // which needs the asymmetry the tool fitted (zeroing it had left a loop of weight 0).
     let power = Config {
         law: Law::Power,
-        hyst_bw_asym: 0.0,
+        hyst_bw_asym: if asymmetric { 0.0 } else { cur.hyst_bw_asym },
         ..cur.clone()
     };
     let mut params = base_params(&power);

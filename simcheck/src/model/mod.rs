@@ -337,7 +337,8 @@ fn predict(
 pub struct Layout {
     pub n_int: usize,
     pub curv_k: bool,
-    pub hyst: bool,
+    /// The additive hysteresis regressors (0, 1, or 2 for the additive Bouc-Wen).
+    pub hyst: usize,
     /// The static law's parameters per node.
     pub law: usize,
 }
@@ -347,14 +348,14 @@ impl Layout {
         self.law_start() + self.law
     }
 
-    /// Index of the additive hysteresis amplitude.
+    /// Index of the (first) additive hysteresis amplitude.
     pub fn hyst_index(&self) -> usize {
         self.n_int + usize::from(self.curv_k)
     }
 
     /// Index of the static law's first parameter.
     pub fn law_start(&self) -> usize {
-        self.n_int + usize::from(self.curv_k) + usize::from(self.hyst)
+        self.n_int + usize::from(self.curv_k) + self.hyst
     }
 }
 

@@ -5,9 +5,9 @@ use super::loads::Loads;
 use super::Layout;
 use crate::context::Context;
 use crate::effects::Config;
-use crate::forms::max_scan_skew;
+use crate::forms::{bouc_wen_gap, max_scan_skew, Knee};
 use crate::law::{Basis, Law};
-use crate::numeric::{centre_by_level, play_gap};
+use crate::numeric::{centre_by_level, centre_by_level_smooth, play_gap};
 
 /// The regressors of the per-node linear fit: the loads, the curvature sensitivity per sample,
 /// the additive hysteresis term and the curvature-baseline regressor, the spline's basis (with
@@ -23,6 +23,8 @@ pub(super) struct Terms {
     pub(super) trials: Vec<usize>,
     n: usize,
     hyst: Vec<f64>,
+    /// The additive Bouc-Wen's second regressor (`z F / F_max`); empty otherwise.
+    hyst2: Vec<f64>,
     curv_x: Vec<f64>,
 }
 
@@ -45,7 +47,7 @@ impl Terms {
         let loads = Loads::new(ctx, cfg, skew, need.as_deref(), step);
         let sens = sensitivity(ctx, cfg);
         let curv_x = curvature_regressor(ctx, cfg);
-        let hyst = additive_hysteresis(ctx, cfg);
+        let (hyst, hyst2) = additive_hysteresis(ctx, cfg);
         let basis = match cfg.law {
             Law::Power => None,
             Law::Spline(m) => Some(Basis::new(m, ds.max_force())),
@@ -53,7 +55,7 @@ impl Terms {
         let lay = Layout {
             n_int: 1,
             curv_k: cfg.curv_base,
-            hyst: !hyst.is_empty(),
+            hyst: usize::from(!hyst.is_empty()) + usize::from(!hyst2.is_empty()),
             law: cfg.law.per_node(),
         };
         Terms {
@@ -65,6 +67,7 @@ impl Terms {
             trials: Vec::new(),
             n: ds.n,
             hyst,
+            hyst2,
             curv_x,
         }
     }
@@ -107,8 +110,11 @@ impl Terms {
             v[self.lay.n_int] = self.curv_x[i];
         }
         let sk = self.s(k, i);
-        if self.lay.hyst {
+        if self.lay.hyst > 0 {
             v[self.lay.hyst_index()] = sk * self.hyst[i];
+        }
+        if self.lay.hyst > 1 {
+            v[self.lay.hyst_index() + 1] = sk * self.hyst2[i];
         }
         let o = self.lay.law_start();
         let l = self.loads.at(k, i, j);
@@ -155,19 +161,17 @@ impl Terms {
     /// at), with parameters `th`.
     pub(super) fn z(&self, th: &[f64], k: usize, i: usize, j: usize) -> f64 {
         let sk = self.s(k, i);
-        let hv = if self.lay.hyst {
-            sk * self.hyst[i]
-        } else {
-            0.0
-        };
         let cx = if self.lay.curv_k { self.curv_x[i] } else { 0.0 };
         let l = self.loads.at(k, i, j);
         let mut z = th[0];
         if self.lay.curv_k {
             z += th[self.lay.n_int] * cx;
         }
-        if self.lay.hyst {
-            z += th[self.lay.hyst_index()] * hv;
+        if self.lay.hyst > 0 {
+            z += th[self.lay.hyst_index()] * sk * self.hyst[i];
+        }
+        if self.lay.hyst > 1 {
+            z += th[self.lay.hyst_index() + 1] * sk * self.hyst2[i];
         }
         match &self.basis {
             None => z + th[self.lay.law_start()] * (sk * l),
@@ -223,11 +227,29 @@ fn curvature_regressor(ctx: &Context, cfg: &Config) -> Vec<f64> {
 }
 
 /// Hysteresis: two play operators (half-widths r and 4 r) mixed by one global weight, so the
-/// loop's shape (sharp or rounded corners) is fitted, not assumed; one amplitude per node. The
-/// gap is centred on its mean at the same force level, so the term only carries the difference
-/// between branches (a loop), never a level-dependent offset the static law should carry.
-fn additive_hysteresis(ctx: &Context, cfg: &Config) -> Vec<f64> {
+/// loop's shape (sharp or rounded corners) is fitted, not assumed, one amplitude per node; or a
+/// Bouc-Wen state on the total force ([`bouc_wen_gap`]), two amplitudes per node (the second
+/// term, if any, is the second returned). Each term is centred on its mean at the same force
+/// level, so it only carries the difference between branches (a loop), never a
+/// level-dependent offset the static law should carry.
+fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<f64>) {
     match cfg.hysteresis.map(|r| r.min(ctx.hyst_r_max)) {
+        Some(r) if cfg.hyst_share.is_none() && cfg.hyst_bouc_wen => {
+            let (z, zu) = bouc_wen_gap(
+                &ctx.force_model,
+                r,
+                &Knee::new(cfg.hyst_bw_n),
+                ctx.force_deadband,
+                cfg.hyst_bw_asym,
+                cfg.hyst_bw_z0,
+            );
+            // A loop that widens with the load is large at the top: centred on a staircase,
+            // its steps would be left for the smooth law to miss.
+            (
+                centre_by_level_smooth(&ctx.force_model, z),
+                centre_by_level_smooth(&ctx.force_model, zu),
+            )
+        }
         Some(r) if cfg.hyst_share.is_none() => {
             let narrow = play_gap(&ctx.force_model, r);
             let wide = play_gap(&ctx.force_model, 4.0 * r);
@@ -236,8 +258,8 @@ fn additive_hysteresis(ctx: &Context, cfg: &Config) -> Vec<f64> {
                 .zip(&wide)
                 .map(|(a, b)| a + cfg.hyst_mix * b)
                 .collect();
-            centre_by_level(&ctx.force_model, mixed)
+            (centre_by_level(&ctx.force_model, mixed), Vec::new())
         }
-        _ => Vec::new(),
+        _ => (Vec::new(), Vec::new()),
     }
 }
