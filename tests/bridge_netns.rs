@@ -506,45 +506,20 @@ fn compare_run(
     listen: Vec<String>,
     connect: Vec<String>,
 ) -> Compared {
-    let (pa, pb) = (format!("{tag}a_"), format!("{tag}b_"));
-    let _cleanup = Cleanup(vec![pa.clone(), pb.clone()]);
-    let allow = "taxel/glove0/*";
-    let mut b_args = args(&["--prefix", &pb, "--allow", allow]);
-    b_args.extend(listen);
-    let mut b = spawn(&format!("bridge B ({kind})"), Some(ns[1]), &b_args);
-    b.wait_for("bridge ready", Duration::from_secs(20));
-    let mut a_args = args(&["--prefix", &pa, "--allow", allow]);
-    a_args.extend(connect);
-    let mut a = spawn(&format!("bridge A ({kind})"), Some(ns[0]), &a_args);
-    a.wait_for("zenoh peers connected: 1", Duration::from_secs(20));
-    let ipc_a = Ipc::open(&pa, "test-publisher").expect("node A");
-    let publisher = ipc_a
-        .publisher::<RawFrame>("glove0", Stream::Raw)
-        .expect("publisher A");
-    let rx = Receiver::start(&pb, 1, Duration::from_secs(25));
-    let first = warm_up(&publisher, &rx, Duration::from_secs(20), &mut || {
-        a.pump();
-        b.pump();
-        format!("A:\n{}\nB:\n{}", a.seen.join("\n"), b.seen.join("\n"))
-    });
-    send_frames(
-        &publisher,
-        first,
+    let _cleanup = Cleanup(vec![format!("{tag}a_"), format!("{tag}b_")]);
+    let Relayed {
+        delivery: d,
+        ages,
+        mut a,
+        mut b,
+    } = relay_pair(
+        &bridge(),
+        tag,
+        [Some(ns[0]), Some(ns[1])],
+        &listen,
+        &connect,
         COMPARE_FRAMES,
-        Duration::from_millis(1),
-        |_| {},
     );
-    std::thread::sleep(Duration::from_millis(500));
-    let arr = rx.finish();
-    let d = delivery(&arr, first, COMPARE_FRAMES);
-    let mut ages: Vec<u64> = arr
-        .iter()
-        .filter(|x| x.seq >= first && x.seq < first + COMPARE_FRAMES)
-        .map(|x| x.age_ns)
-        .collect();
-    ages.sort_unstable();
-    drop(publisher);
-    drop(ipc_a);
     let (sa, sb) = (a.stop(), b.stop());
     println!(
         "  {kind}: bridge A {}; bridge B {}; gaps {:?}",

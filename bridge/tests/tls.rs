@@ -29,39 +29,21 @@ struct Measured {
 
 /// Two bridges (B listens, A connects), FRAMES frames from domain A to domain B.
 fn relay(tag: &str, listen: &[String], connect: &[String], keep: bool) -> (Measured, Proc, Proc) {
-    let (pa, pb) = (format!("{tag}a_"), format!("{tag}b_"));
-    let allow = "taxel/glove0/*";
-    let mut b_args = args(&["--prefix", &pb, "--allow", allow, "--report-s", "1"]);
-    b_args.extend_from_slice(listen);
-    let mut b = spawn(&format!("bridge B ({tag})"), None, &b_args);
-    b.wait_for("bridge ready", Duration::from_secs(20));
-    let mut a_args = args(&["--prefix", &pa, "--allow", allow, "--report-s", "1"]);
-    a_args.extend_from_slice(connect);
-    let mut a = spawn(&format!("bridge A ({tag})"), None, &a_args);
-    a.wait_for("zenoh peers connected: 1", Duration::from_secs(20));
-
-    let ipc_a = Ipc::open(&pa, "test-publisher").expect("node A");
-    let publisher = ipc_a
-        .publisher::<RawFrame>("glove0", Stream::Raw)
-        .expect("publisher A");
-    let rx = Receiver::start(&pb, 1, Duration::from_secs(25));
-    let first = warm_up(&publisher, &rx, Duration::from_secs(20), &mut || {
-        a.pump();
-        b.pump();
-        format!("A:\n{}\nB:\n{}", a.seen.join("\n"), b.seen.join("\n"))
-    });
-    send_frames(&publisher, first, FRAMES, Duration::from_millis(1), |_| {});
-    std::thread::sleep(Duration::from_millis(500));
-    let arr = rx.finish();
-    let d = delivery(&arr, first, FRAMES);
-    let mut ages: Vec<u64> = arr
-        .iter()
-        .filter(|x| x.seq >= first)
-        .map(|x| x.age_ns)
-        .collect();
-    ages.sort_unstable();
-    drop(publisher);
-    drop(ipc_a);
+    let report = args(&["--report-s", "1"]);
+    let with = |extra: &[String]| [report.clone(), extra.to_vec()].concat();
+    let Relayed {
+        delivery: d,
+        ages,
+        mut a,
+        mut b,
+    } = relay_pair(
+        &BridgeExe::standalone(BRIDGE),
+        tag,
+        [None, None],
+        &with(listen),
+        &with(connect),
+        FRAMES,
+    );
     if !keep {
         let (sa, sb) = (a.stop(), b.stop());
         assert!(sa.success(), "bridge A: {sa}\n{}", a.seen.join("\n"));

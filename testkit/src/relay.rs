@@ -306,3 +306,60 @@ pub fn delivery(arr: &[Arrival], first: u64, n: u64) -> Delivery {
     }
     d
 }
+
+/// What a pair of bridges relayed: the delivery of the measured frames, their ages (sorted),
+/// and both bridges, still running.
+pub struct Relayed {
+    pub delivery: Delivery,
+    pub ages: Vec<u64>,
+    pub a: Proc,
+    pub b: Proc,
+}
+
+/// Bridge B (listening, in `netns[1]`) and bridge A (connecting, in `netns[0]`), each on
+/// prefix `{tag}b_` / `{tag}a_` with `--allow 'taxel/glove0/*'` and its own `b_args` /
+/// `a_args`; after a warm-up, `n` raw frames at 1 kHz from domain A to domain B.
+pub fn relay_pair(
+    exe: &BridgeExe,
+    tag: &str,
+    netns: [Option<&str>; 2],
+    b_args: &[String],
+    a_args: &[String],
+    n: u64,
+) -> Relayed {
+    let (pa, pb) = (format!("{tag}a_"), format!("{tag}b_"));
+    let allow = "taxel/glove0/*";
+    let mut args_b = args(&["--prefix", &pb, "--allow", allow]);
+    args_b.extend_from_slice(b_args);
+    let mut b = exe.spawn(&format!("bridge B ({tag})"), netns[1], &args_b);
+    b.wait_for("bridge ready", Duration::from_secs(20));
+    let mut args_a = args(&["--prefix", &pa, "--allow", allow]);
+    args_a.extend_from_slice(a_args);
+    let mut a = exe.spawn(&format!("bridge A ({tag})"), netns[0], &args_a);
+    a.wait_for("zenoh peers connected: 1", Duration::from_secs(20));
+    let ipc_a = Ipc::open(&pa, "test-publisher").expect("node A");
+    let publisher = ipc_a
+        .publisher::<RawFrame>("glove0", Stream::Raw)
+        .expect("publisher A");
+    let rx = Receiver::start(&pb, 1, Duration::from_secs(25));
+    let first = warm_up(&publisher, &rx, Duration::from_secs(20), &mut || {
+        a.pump();
+        b.pump();
+        format!("A:\n{}\nB:\n{}", a.seen.join("\n"), b.seen.join("\n"))
+    });
+    send_frames(&publisher, first, n, Duration::from_millis(1), |_| {});
+    std::thread::sleep(Duration::from_millis(500));
+    let arr = rx.finish();
+    let mut ages: Vec<u64> = arr
+        .iter()
+        .filter(|x| x.seq >= first && x.seq < first + n)
+        .map(|x| x.age_ns)
+        .collect();
+    ages.sort_unstable();
+    Relayed {
+        delivery: delivery(&arr, first, n),
+        ages,
+        a,
+        b,
+    }
+}
