@@ -314,11 +314,13 @@ fn candidate_variants(
                 ..s.clone()
             })
             .collect();
-        let mut p_bw: Vec<Param> = params
+        // The forms without the plays' mix: the shared parameters less HystMix.
+        let no_mix: Vec<Param> = params
             .iter()
             .copied()
             .filter(|p| *p != Param::HystMix)
             .collect();
+        let mut p_bw = no_mix.clone();
         p_bw.extend([Param::HystShare, Param::HystLnN, Param::HystAsym]);
         // Preisach relays in the load path (virgin start): half-widths around the plays'
         // half-widths, centres low or mid-range, both signs of the share.
@@ -336,11 +338,7 @@ fn candidate_variants(
                 })
             })
             .collect();
-        let mut p_pr: Vec<Param> = params
-            .iter()
-            .copied()
-            .filter(|p| *p != Param::HystMix)
-            .collect();
+        let mut p_pr = no_mix.clone();
         p_pr.extend([Param::HystShare, Param::PreisMu, Param::PreisLnSigma]);
         // The Bouc-Wen state on the total force, per node an amplitude (each node's own
         // strength of hysteresis) and its growth with the load, started virgin or last
@@ -356,11 +354,7 @@ fn candidate_variants(
                 })
             })
             .collect();
-        let mut p_abw: Vec<Param> = params
-            .iter()
-            .copied()
-            .filter(|p| *p != Param::HystMix)
-            .collect();
+        let mut p_abw = no_mix;
         p_abw.extend([Param::HystLnN, Param::HystAsym, Param::HystZ0]);
         return vec![
             (starts, params),
