@@ -2,7 +2,8 @@
 //! Zenoh, for observation and logging (a glove on a wearable computer, the logger and monitor on
 //! a workstation). It runs iceoryx2's own link (`iceoryx2-link`) with the tunnel backend
 //! (`iceoryx2-link-tunnel`) over the Zenoh carrier (`iceoryx2-integrations-zenoh-link-carrier`,
-//! vendored in the repository's `vendor/` with one manifest change, see its VENDORED.md):
+//! vendored in the repository's `vendor/`, as is Zenoh's TLS link with a fix; see their
+//! VENDORED.md):
 //! services whose names match the `--allow` globs are offered to the peers, services the peers
 //! offer are mirrored into the local domain, publish-subscribe samples and events cross in order, and a sample the
 //! bridge published itself is never sent back. This crate adds what taxel needs around the
