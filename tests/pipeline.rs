@@ -218,7 +218,20 @@ fn every_wake_mode_receives_every_sample() {
     let cal = p.write("cal.toml", SIM_CAL);
     let limit = Duration::from_secs(20);
     let calibrator = p.calibrator("s0", &cal, &["--wake", "adaptive"]);
-    let probes: Vec<_> = ["event", "busy", "adaptive"]
+    // The busy probe takes a whole core for itself. Beside it on this 2-core machine (with the
+    // publisher, the calibrator and the other tests' processes sharing the other core) the
+    // adaptive probe's sleeps once overshot by 9 ms (p99, a CI run of 2026-11-27) and it fell
+    // back to the event for 1 239 of 1 491 samples, as designed when polling cannot pay. So the
+    // busy probe gets a stream of its own, after the other two.
+    for modes in [&["event", "adaptive"][..], &["busy"]] {
+        run_wake_probes(&mut p, modes, limit);
+    }
+    p.stop(&[calibrator]);
+}
+
+/// One latency probe per wake mode on a 3 s, 500 Hz stream of `s0`: none loses a sample.
+fn run_wake_probes(p: &mut taxel_testkit::Pipeline, modes: &[&str], limit: Duration) {
+    let probes: Vec<_> = modes
         .iter()
         .map(|m| p.latency(m, "s0", &["--seconds", "3", "--json", "--wake", m]))
         .collect();
@@ -247,5 +260,4 @@ fn every_wake_mode_receives_every_sample() {
         }
     }
     p.finish(publisher, limit);
-    p.stop(&[calibrator]);
 }
