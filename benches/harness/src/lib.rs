@@ -6,6 +6,7 @@
 //! from the running executable, so this library only works inside the `taxel` launcher.
 
 pub mod peers;
+mod platform;
 mod python;
 mod report;
 mod skin;
@@ -70,6 +71,8 @@ struct CaseResult {
     roles: Vec<RoleStat>,
     /// A search's runs: sensor count, whether nothing was lost, what was seen.
     trials: Vec<(usize, bool, String)>,
+    /// The platform's wake-up lateness over the same window (real-time cases).
+    platform: Option<platform::Lateness>,
 }
 
 /// One role's processes in a case.

@@ -151,8 +151,21 @@ fn skin_json(c: &CaseResult) -> String {
             )
         })
         .collect();
+    let platform = match &c.platform {
+        Some(l) => format!(
+            ", \"platform_wakeup\": {{\"priority\": {}, \"wakeups\": {}, \"p50_us\": {}, \"p99_us\": {}, \"p999_us\": {}, \"max_us\": {}, \"over_1ms\": {}}}",
+            l.priority,
+            l.wakeups,
+            num(l.p50_us),
+            num(l.p99_us),
+            num(l.p999_us),
+            num(l.max_us),
+            l.over_1ms
+        ),
+        None => String::new(),
+    };
     format!(
-        ", \"sensors\": {}, \"expected\": {}, \"roles\": [{}], \"trials\": [{}]}}",
+        ", \"sensors\": {}, \"expected\": {}, \"roles\": [{}], \"trials\": [{}]{platform}}}",
         c.sensors,
         num(c.expected),
         roles.join(", "),
@@ -181,6 +194,27 @@ fn roles_table(cases: &[CaseResult]) -> String {
                 r.rss_mb_max_process,
                 r.private_warm_mb,
                 r.private_mb
+            ));
+        }
+    }
+    for c in cases {
+        if let Some(l) = &c.platform {
+            md.push_str(&format!(
+                "\n{}: the platform beside it (a thread waking every {} ms on absolute deadlines at {}): {} wake-ups, lateness p50 {:.0} us, p99 {:.0} us, p99.9 {:.0} us, max {:.0} us; {} ({:.2} %) more than 1 ms late. A frame's age spans four wake-ups (publisher, estimator, calibrator, probe).\n",
+                c.case,
+                crate::platform::PERIOD_NS / 1_000_000,
+                if l.priority > 0 {
+                    format!("SCHED_FIFO {}", l.priority)
+                } else {
+                    "normal priority: real-time refused".to_string()
+                },
+                l.wakeups,
+                l.p50_us,
+                l.p99_us,
+                l.p999_us,
+                l.max_us,
+                l.over_1ms,
+                l.over_1ms_pct()
             ));
         }
     }

@@ -118,6 +118,9 @@ fn rss_kib(pid: u32) -> (u64, u64) {
 
 /// The real-time priority (SCHED_FIFO, 1-99) of `skin_64_sensors_realtime`'s processes.
 pub(crate) const REALTIME: u8 = 20;
+/// How far above the case's priority the platform sleeper runs, so nothing of the case delays
+/// it and its lateness is the platform's.
+const PLATFORM_ABOVE: u8 = 10;
 
 /// A skin case: how many sensors, in which layout.
 #[derive(Debug, Clone, Copy)]
@@ -321,6 +324,11 @@ fn run_skin(
         p.cpu0 = cpu_of(p.child.id());
     }
     let probe_cpu0 = cpu_of(probe.id());
+    // At real-time priority, the platform's own wake-up lateness over the same window, from a
+    // sleeper above the case's priority (crate::platform).
+    let sleeper = k
+        .realtime
+        .map(|r| crate::platform::Sleeper::start(r.saturating_add(PLATFORM_ABOVE).min(99)));
     let every = Duration::from_secs_f64((k.secs / 20.0).max(0.5));
     let warm = Duration::from_secs_f64(k.secs * 0.2);
     let mut warm_taken = false;
@@ -347,6 +355,7 @@ fn run_skin(
         std::thread::sleep(every.min(Duration::from_millis(500)));
     }
     let wall = t0.elapsed().as_secs_f64().max(1e-3);
+    let platform = sleeper.map(crate::platform::Sleeper::finish);
     let cpu: Vec<f64> = procs
         .iter()
         .map(|p| (cpu_of(p.child.id()) - p.cpu0).max(0.0) / wall * 100.0)
@@ -367,6 +376,7 @@ fn run_skin(
     let mut res = from_json(case, &json, &waiting);
     res.sensors = k.sensors;
     res.expected = k.sensors as f64 * k.rate * field(&json, "seconds");
+    res.platform = platform;
     for role in ["publisher", "estimator", "calibrator"] {
         let mb = |of: &[(&Proc, f64)], f: fn(&Proc) -> u64| {
             of.iter().map(|(p, _)| f(p)).sum::<u64>() as f64 / 1024.0
