@@ -375,15 +375,37 @@ fn two_hosts_over_an_impaired_link_with_a_cut() {
         holes.len(),
         marked.len()
     );
-    for l in a
-        .seen
-        .iter()
-        .chain(&b.seen)
-        .filter(|l| l.contains("peers connected") || l.contains("WARN"))
-        .take(12)
-    {
-        println!("  log: {}", l.trim());
-    }
+    // Each session's start and end (with Zenoh's reason: a lease that expired, a closed peer,
+    // a TLS error), then the first warnings (bridge C's refusals).
+    let logged = |what: &dyn Fn(&str) -> bool, most: usize| {
+        for (who, l) in a
+            .seen
+            .iter()
+            .map(|l| ("A", l))
+            .chain(b.seen.iter().map(|l| ("B", l)))
+            .filter(|(_, l)| what(l))
+            .take(most)
+        {
+            // Zenoh's reason comes last, after the link's whole configuration.
+            let l: Vec<char> = l.trim().chars().collect();
+            let l: String = if l.len() > 240 {
+                let (head, tail) = (&l[..80], &l[l.len() - 150..]);
+                format!(
+                    "{} ... {}",
+                    String::from_iter(head),
+                    String::from_iter(tail)
+                )
+            } else {
+                l.into_iter().collect()
+            };
+            println!("  log {who}: {l}");
+        }
+    };
+    logged(
+        &|l| l.contains("peers connected") || l.contains("task failed"),
+        24,
+    );
+    logged(&|l| l.contains("WARN"), 4);
 
     assert!(sl.success(), "far logger: {sl}\n{}", logger.seen.join("\n"));
     assert!(sa.success(), "bridge A: {sa}\n{}", a.seen.join("\n"));

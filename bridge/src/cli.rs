@@ -139,13 +139,18 @@ impl Args {
     }
 }
 
+/// The Zenoh module that logs why a session's link stopped ("TX task failed: ...").
+pub const SESSION_END: &str = "zenoh_transport::unicast::universal::link";
+
 pub fn main(args: Args) -> ExitCode {
-    // Zenoh logs its own start-up at info; keep it to warnings unless asked for.
+    // Zenoh logs its own start-up at info; keep it to warnings unless asked for. Why a session
+    // ended (its link's TX or RX task failed: a lease that expired, a peer that closed, a TLS
+    // error) Zenoh says only at debug, once per session: keep that.
     let filter = if args.common.log.contains("zenoh") {
         args.common.log.clone()
     } else {
         format!(
-            "{},zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn,zenoh_link_tls=warn",
+            "{},zenoh=warn,zenoh_transport=warn,{SESSION_END}=debug,zenoh_link_tcp=warn,zenoh_link_tls=warn",
             args.common.log
         )
     };

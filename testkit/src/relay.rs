@@ -53,7 +53,15 @@ impl BridgeExe {
             }
             None => Command::new(&self.program),
         };
-        cmd.args(&self.pre).args(args).env_remove("TAXEL_PREFIX");
+        // With why each Zenoh session ended (the bridge's default keeps it; RUST_LOG replaces
+        // the default).
+        cmd.args(&self.pre)
+            .args(args)
+            .env_remove("TAXEL_PREFIX")
+            .env(
+                "RUST_LOG",
+                "info,zenoh_transport::unicast::universal::link=debug",
+            );
         cmd
     }
 
