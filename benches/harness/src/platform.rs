@@ -12,6 +12,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
+use taxel_consumers::age::AgeHistogram;
 use taxel_runtime::clock::{fine_timer_slack, sleep_until_ns};
 use taxel_runtime::now_ns;
 
@@ -33,24 +34,28 @@ pub(crate) struct Lateness {
 }
 
 impl Lateness {
-    /// From the lateness of each wake-up (ns).
-    fn of(priority: u8, mut late: Vec<u64>) -> Lateness {
-        late.sort_unstable();
-        let q = |p: f64| -> f64 {
+    /// From the wake-ups' lateness (the same histogram as the latency probe's ages) and how
+    /// many were more than 1 ms late.
+    fn of(priority: u8, late: &AgeHistogram, over_1ms: usize) -> Lateness {
+        let q = |p: f64| {
             if late.is_empty() {
-                return f64::NAN;
+                f64::NAN
+            } else {
+                late.percentile_us(p)
             }
-            let i = ((p / 100.0) * (late.len() - 1) as f64).round() as usize;
-            late[i.min(late.len() - 1)] as f64 / 1e3
         };
         Lateness {
             priority,
-            wakeups: late.len(),
+            wakeups: late.len() as usize,
             p50_us: q(50.0),
             p99_us: q(99.0),
             p999_us: q(99.9),
-            max_us: q(100.0),
-            over_1ms: late.iter().filter(|&&l| l > 1_000_000).count(),
+            max_us: if late.is_empty() {
+                f64::NAN
+            } else {
+                late.max_us()
+            },
+            over_1ms,
         }
     }
 
@@ -83,11 +88,13 @@ impl Sleeper {
             let rc = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
             let ran_at = if rc == 0 { priority } else { 0 };
             fine_timer_slack();
-            let mut late = Vec::with_capacity(1 << 16);
+            let (mut late, mut over_1ms) = (AgeHistogram::new(), 0);
             let mut next = now_ns() + PERIOD_NS;
             while !flag.load(Ordering::Relaxed) {
                 sleep_until_ns(next);
-                late.push(now_ns().saturating_sub(next));
+                let l = now_ns().saturating_sub(next);
+                late.record_ns(l);
+                over_1ms += usize::from(l > 1_000_000);
                 next += PERIOD_NS;
                 // After a stall longer than a period, the missed deadlines are not counted
                 // again one by one: the next deadline is the next one still ahead.
@@ -96,7 +103,7 @@ impl Sleeper {
                     next += (now - next) / PERIOD_NS * PERIOD_NS + PERIOD_NS;
                 }
             }
-            Lateness::of(ran_at, late)
+            Lateness::of(ran_at, &late, over_1ms)
         });
         Sleeper { stop, handle }
     }
@@ -114,19 +121,20 @@ mod tests {
 
     #[test]
     fn lateness_percentiles_and_the_share_over_a_millisecond() {
-        // 1 000 wake-ups: 990 at 10 us, 9 at 500 us, one at 2 ms.
-        let mut late = vec![10_000u64; 990];
-        late.extend([500_000; 9]);
-        late.push(2_000_000);
-        let l = Lateness::of(30, late);
-        assert_eq!(l.wakeups, 1000);
-        assert_eq!(l.p50_us, 10.0);
-        assert_eq!(l.p99_us, 10.0);
-        assert_eq!(l.p999_us, 500.0);
-        assert_eq!(l.max_us, 2000.0);
-        assert_eq!(l.over_1ms, 1);
-        assert!((l.over_1ms_pct() - 0.1).abs() < 1e-12);
-        assert!(Lateness::of(30, Vec::new()).over_1ms_pct().is_nan());
+        // 10 000 wake-ups: 9 900 at 10 us, 99 at 500 us, one at 2 ms.
+        let mut late = AgeHistogram::new();
+        for (n, ns) in [(9_900, 10_000u64), (99, 500_000), (1, 2_000_000)] {
+            (0..n).for_each(|_| late.record_ns(ns));
+        }
+        let l = Lateness::of(30, &late, 1);
+        assert_eq!(l.wakeups, 10_000);
+        // The histogram keeps 3 significant digits.
+        let near = |got: f64, want: f64| (got - want).abs() <= want * 1e-3;
+        assert!(near(l.p50_us, 10.0) && near(l.p99_us, 10.0), "{l:?}");
+        assert!(near(l.p999_us, 500.0) && near(l.max_us, 2000.0), "{l:?}");
+        assert!((l.over_1ms_pct() - 0.01).abs() < 1e-12);
+        let none = Lateness::of(30, &AgeHistogram::new(), 0);
+        assert!(none.over_1ms_pct().is_nan() && none.p99_us.is_nan());
     }
 
     #[test]
