@@ -68,10 +68,10 @@ impl Lateness {
     }
 }
 
-/// The running sleeper.
+/// The running sleeper; dropped without [`Sleeper::finish`] (a case that failed), it stops.
 pub(crate) struct Sleeper {
     stop: Arc<AtomicBool>,
-    handle: JoinHandle<Lateness>,
+    handle: Option<JoinHandle<Lateness>>,
 }
 
 impl Sleeper {
@@ -105,13 +105,25 @@ impl Sleeper {
             }
             Lateness::of(ran_at, &late, over_1ms)
         });
-        Sleeper { stop, handle }
+        Sleeper {
+            stop,
+            handle: Some(handle),
+        }
     }
 
     /// Stops the sleeper; what it measured.
-    pub fn finish(self) -> Lateness {
+    pub fn finish(mut self) -> Lateness {
         self.stop.store(true, Ordering::Relaxed);
-        self.handle.join().unwrap_or_default()
+        self.handle
+            .take()
+            .and_then(|h| h.join().ok())
+            .unwrap_or_default()
+    }
+}
+
+impl Drop for Sleeper {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
     }
 }
 
@@ -145,5 +157,13 @@ mod tests {
         // 500 ms at 100 Hz: whatever the machine's lateness, the sleeper woke and counted.
         assert!(l.wakeups >= 10 && l.wakeups <= 51, "{l:?}");
         assert!(l.p50_us >= 0.0 && l.max_us >= l.p50_us, "{l:?}");
+    }
+
+    #[test]
+    fn a_sleeper_dropped_without_finishing_stops() {
+        let s = Sleeper::start(30);
+        let stop = s.stop.clone();
+        drop(s);
+        assert!(stop.load(Ordering::Relaxed));
     }
 }
