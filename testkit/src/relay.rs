@@ -53,8 +53,8 @@ impl BridgeExe {
             }
             None => Command::new(&self.program),
         };
-        // With why each Zenoh session ended (the bridge's default keeps it; RUST_LOG replaces
-        // the default).
+        // With why each Zenoh session ended (`taxel_bridge::cli::SESSION_END` at debug: the
+        // bridge's default filter keeps it, and RUST_LOG replaces that default).
         cmd.args(&self.pre)
             .args(args)
             .env_remove("TAXEL_PREFIX")

@@ -37,6 +37,7 @@ pub(crate) fn write(
         ));
     }
     md.push_str(&roles_table(cases));
+    md.push_str(&platform_lines(cases));
     let cases_json: Vec<String> = cases
         .iter()
         .map(|c| {
@@ -197,6 +198,21 @@ fn roles_table(cases: &[CaseResult]) -> String {
             ));
         }
     }
+    for c in cases.iter().filter(|c| !c.trials.is_empty()) {
+        md.push_str(&format!("\n{} runs:\n\n", c.case));
+        for (n, ok, what) in &c.trials {
+            md.push_str(&format!(
+                "- {n} sensors: {}: {what}\n",
+                if *ok { "no loss" } else { "loss" }
+            ));
+        }
+    }
+    md
+}
+
+/// The platform's wake-up lateness beside each real-time case, a line each (empty when none).
+fn platform_lines(cases: &[CaseResult]) -> String {
+    let mut md = String::new();
     for c in cases {
         if let Some(l) = &c.platform {
             md.push_str(&format!(
@@ -215,15 +231,6 @@ fn roles_table(cases: &[CaseResult]) -> String {
                 l.max_us,
                 l.over_1ms,
                 l.over_1ms_pct()
-            ));
-        }
-    }
-    for c in cases.iter().filter(|c| !c.trials.is_empty()) {
-        md.push_str(&format!("\n{} runs:\n\n", c.case));
-        for (n, ok, what) in &c.trials {
-            md.push_str(&format!(
-                "- {n} sensors: {}: {what}\n",
-                if *ok { "no loss" } else { "loss" }
             ));
         }
     }
