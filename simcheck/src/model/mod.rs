@@ -45,9 +45,10 @@ pub fn evaluate(ctx: &Context, cfg: &Config, train: &dyn Fn(usize) -> bool) -> E
 }
 
 /// As [`evaluate`], predicting only the samples it does not train on (the others are 0): what
-/// a cross-validation fold needs.
+/// a cross-validation fold needs. The per-node fit looks at every [`Context::held_out_stride`]-th
+/// training sample (every one up to [`crate::context::FIT_SAMPLES`] samples).
 pub fn evaluate_held_out(ctx: &Context, cfg: &Config, train: &dyn Fn(usize) -> bool) -> Eval {
-    evaluate_inner(ctx, cfg, train, 1, true, true)
+    evaluate_inner(ctx, cfg, train, ctx.held_out_stride(), true, true)
 }
 
 /// As [`evaluate`], fitting on every `stride`-th training sample; with `want_pred` false only
