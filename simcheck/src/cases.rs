@@ -105,10 +105,23 @@ pub fn run_cases(a: &CasesArgs) -> anyhow::Result<()> {
         ),
         None => None,
     };
+    // Every family's cases, checked before any runs.
+    let plan: Vec<(Family, Vec<Case>)> = families
+        .into_iter()
+        .map(|family| {
+            let cases = match &only {
+                Some(list) => list
+                    .iter()
+                    .map(|&c| family.check(c))
+                    .collect::<anyhow::Result<Vec<Case>>>()?,
+                None => family.cases(),
+            };
+            Ok((family, cases))
+        })
+        .collect::<anyhow::Result<_>>()?;
     let mut md = String::new();
     let mut rows_json = Vec::new();
-    for family in families {
-        let cases = only.clone().unwrap_or_else(|| family.cases());
+    for (family, cases) in plan {
         let dir = if family == Family::Reference {
             a.out.clone()
         } else {

@@ -67,7 +67,8 @@ pub struct CasesArgs {
     /// Length of each recording (s).
     #[arg(long, default_value_t = 300.0)]
     pub seconds: f64,
-    /// Only these cases (slugs, comma-separated); default all of each family's.
+    /// Only these cases (slugs, comma-separated); default all of each family's. A case a
+    /// family does not make is refused before any runs.
     #[arg(long)]
     pub only: Option<String>,
     /// Families of worlds (comma-separated: reference, zoo-log, zoo-sat, zoo-pow, zoo-amp,
@@ -238,6 +239,7 @@ pub(crate) fn parse_case(slug: &str) -> anyhow::Result<Case> {
 fn run_world(a: WorldArgs) -> anyhow::Result<()> {
     let case = parse_case(&a.case)?;
     let family = crate::cases::parse_family(&a.family)?;
+    let case = family.check(case)?;
     let rec = crate::zoo::generate(family, case, a.seed, a.seconds);
     let mut w = taxel_formats::csv::RecordingWriter::create(
         &a.out,

@@ -87,6 +87,38 @@ impl Family {
         }
     }
 
+    /// Whether this family's worlds can make `case`: the reference world every case; a zoo
+    /// family its judged cases, creep + hysteresis, hysteresis + thermal drift and the drift
+    /// without a temperature column (not the labelled curvature, crosstalk, scan skew and
+    /// saturation cases, whose forms are the reference world's).
+    pub fn generates(self, case: Case) -> bool {
+        self == Family::Reference
+            || Case::JUDGED.contains(&case)
+            || matches!(
+                case,
+                Case::CreepHysteresis | Case::TwoEffects | Case::ThermalHidden
+            )
+    }
+
+    /// `case` if this family's worlds can make it; else an error naming both.
+    pub fn check(self, case: Case) -> anyhow::Result<Case> {
+        if self.generates(case) {
+            return Ok(case);
+        }
+        let can: Vec<String> = Case::ALL
+            .into_iter()
+            .chain(Case::EXTRA)
+            .filter(|&c| self.generates(c))
+            .map(Case::slug)
+            .collect();
+        anyhow::bail!(
+            "case {:?} is not made by family {}; its cases: {}",
+            case.slug(),
+            self.name(),
+            can.join(", ")
+        )
+    }
+
     /// The taxel-sim preset behind a zoo family.
     pub fn preset(self) -> Option<SensorModel> {
         match self {
@@ -450,12 +482,18 @@ pub fn generate(fam: Family, case: Case, seed: u64, duration_s: f64) -> Recordin
     let len = (duration_s * RATE_HZ) as usize;
     let curv_case = case == Case::CurvatureUnlabelled;
     let kappas = [0.0, 60.0, 20.0, 80.0, 40.0];
-    let thermal_on = matches!(case, Case::ThermalRecorded | Case::CreepThermal);
+    let thermal_on = matches!(
+        case,
+        Case::ThermalRecorded | Case::ThermalHidden | Case::CreepThermal | Case::TwoEffects
+    );
     let creep_on = matches!(
         case,
         Case::Creep | Case::CreepThermal | Case::CreepHysteresis
     );
-    let hyst_on = matches!(case, Case::Hysteresis | Case::CreepHysteresis);
+    let hyst_on = matches!(
+        case,
+        Case::Hysteresis | Case::CreepHysteresis | Case::TwoEffects
+    );
     // zoo-hys: each node's own strength of hysteresis and of creep (a stream of their own,
     // so the other families' draws are unchanged).
     let strengths: Vec<(f64, f64)> = {
@@ -558,7 +596,7 @@ pub fn generate(fam: Family, case: Case, seed: u64, duration_s: f64) -> Recordin
     rec.force_n = Some(force);
     if matches!(
         case,
-        Case::ThermalRecorded | Case::CreepThermal | Case::Distractor
+        Case::ThermalRecorded | Case::CreepThermal | Case::Distractor | Case::TwoEffects
     ) {
         rec.temp_c = Some(temp);
     }

@@ -58,6 +58,40 @@ fn bad_recordings_get_one_line_errors() {
 }
 
 #[test]
+fn a_case_a_family_does_not_make_is_refused() {
+    // A zoo family has no crosstalk world: asked for one, it must say so, not write a null
+    // recording under the case's name.
+    let dir = std::env::temp_dir().join(format!("simcheck-cli-case-{}", std::process::id()));
+    let csv = dir.join("w.csv");
+    for args in [
+        vec!["world", "--family", "zoo-log", "--case", "crosstalk"],
+        vec![
+            "cases",
+            "--family",
+            "reference,zoo-sat",
+            "--only",
+            "null,scan_skew",
+        ],
+    ] {
+        let mut cmd = simcheck();
+        cmd.args(&args);
+        if args[0] == "world" {
+            cmd.arg("--out").arg(&csv);
+        } else {
+            cmd.arg("--out").arg(&dir);
+        }
+        let out = cmd.output().expect("runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.contains("is not made by family"), "{args:?}: {err}");
+        assert!(!csv.exists(), "{args:?}");
+        assert!(!dir.join("cases.md").exists(), "{args:?}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn a_diagnosis_writes_its_reports_and_a_loadable_model() {
     let dir = tempfile::tempdir().expect("tempdir");
     let rec = dir.path().join("creep.csv");
