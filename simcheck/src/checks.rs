@@ -34,9 +34,16 @@ pub fn signature_check(
     if e == EffectKind::ThermalDrift {
         let ([rest, loaded], se_rest) = gain_betas(ds, noise, before, after);
         v.gain_betas = Some([rest, loaded]);
+        v.gain_rest_se = se_rest.is_finite().then_some(se_rest);
         if rest.is_finite() && loaded.is_finite() {
-            // Matched at rest and overshot under load: a wander fitted as a factor.
-            let wander_like = loaded <= 0.0 || (rest > 0.0 && loaded < GAIN_RATIO[0] * rest);
+            // Matched at rest and overshot under load: a wander fitted as a factor. With a
+            // temperature column the factor follows the recorded temperature, not a wander, so
+            // there it counts, like the opposite case below, only when the rest beta is measured
+            // well enough to say so (a per-node wander at rest can leave it uncertain).
+            let rest_uncertain =
+                ds.temp.is_some() && rest - loaded / GAIN_RATIO[0] <= 2.0 * se_rest;
+            let wander_like =
+                loaded <= 0.0 || (rest > 0.0 && loaded < GAIN_RATIO[0] * rest && !rest_uncertain);
             // Far more under load than at rest (an effect of the load standing in for a
             // drift), counted only when the rest beta is measured well enough to say so: a
             // wander at rest can make it uncertain.

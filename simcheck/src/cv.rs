@@ -161,6 +161,9 @@ pub struct Verdict {
     /// Thermal drift only: the size of its contribution relative to the residual at rest and
     /// far above the rest level (see `checks::gain_betas`).
     pub gain_betas: Option<[f64; 2]>,
+    /// Thermal drift only: the standard error of the rest beta of `gain_betas` in the noise
+    /// model.
+    pub gain_rest_se: Option<f64>,
     /// The per-block gains measured against the size of the change in each block (see
     /// [`change_weighted_t`]).
     pub weighted_t: f64,
@@ -296,6 +299,7 @@ pub fn compare(
         loop_share: None,
         loop_removed: None,
         gain_betas: None,
+        gain_rest_se: None,
         weighted_t,
         change_blocks,
     }

@@ -51,6 +51,7 @@ mod tests {
             loop_share: None,
             loop_removed: None,
             gain_betas: None,
+            gain_rest_se: None,
             weighted_t: 0.0,
             change_blocks: 0.0,
         };

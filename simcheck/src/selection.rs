@@ -457,6 +457,7 @@ impl Selection<'_> {
                 if e == EffectKind::ThermalDrift && self.cur.thermal_gain_only {
                     v = Verdict {
                         gain_betas: v.gain_betas,
+                        gain_rest_se: v.gain_rest_se,
                         ..checked
                     };
                 }
