@@ -400,6 +400,77 @@ mod tests {
     }
 
     #[test]
+    fn a_recorded_drift_is_refused_as_a_wander_only_on_a_rest_beta_measured_well() {
+        let mut ds = presses();
+        ds.y = ds.force.iter().map(|f| 100.0 + 40.0 * f).collect();
+        ds.map = crate::data::ReadoutMap::from_readout(&taxel_sim::SensorModel::default().readout);
+        let dom: Vec<f64> = ds.y.iter().map(|&y| ds.map.dom(y)).collect();
+        let slow: Vec<f64> = ds.t.iter().map(|t| (t / 30.0).sin()).collect();
+        // The offset of the test above, fitted as a gain: matched at rest, overshot under load.
+        let offset_r: Vec<f64> = slow.iter().map(|s| -s).collect();
+        let change: Vec<f64> = offset_r
+            .iter()
+            .zip(&dom)
+            .map(|(r, y)| r - r * y / dom[0])
+            .collect();
+        let (mut before, mut after) = (cv(offset_r), cv(change));
+        // No-load SSE per block falling in every block: the latent drift's rest test passes,
+        // so what refuses it below is the gain check.
+        before.rest_block_sse = vec![10.0, 11.0, 9.0, 10.5];
+        after.rest_block_sse = vec![1.0, 1.2, 0.9, 1.1];
+        let verdict = || Verdict {
+            rmse_before: 1.0,
+            rmse_after: 0.9,
+            rel_gain: 0.19,
+            block_t: 5.0,
+            blocks_improved: 1.0,
+            rank_z: 4.0,
+            n_eff: 100.0,
+            ic_gain: 10.0,
+            accepted: true,
+            rest_block_t: 5.0,
+            rest_rel_gain: 0.2,
+            keep: true,
+            ramp_betas: None,
+            loop_share: None,
+            loop_removed: None,
+            gain_betas: None,
+            gain_rest_se: None,
+            weighted_t: 5.0,
+            change_blocks: 10.0,
+        };
+        let checked = |ds: &Dataset, var: f64| {
+            let mut v = verdict();
+            let noise = NoiseModel::white(1, var);
+            signature_check(
+                ds,
+                &noise,
+                EffectKind::ThermalDrift,
+                &before,
+                &after,
+                &mut v,
+            );
+            v
+        };
+        // Without a temperature column (the latent drift's case) the bound holds however
+        // uncertain the rest beta.
+        ds.temp = None;
+        for var in [1e-6, 1e6] {
+            let v = checked(&ds, var);
+            let [rest, far] = v.gain_betas.expect("betas");
+            assert!(far / rest < GAIN_RATIO[0], "{rest} {far}");
+            assert!(!v.accepted && !v.keep, "latent, noise {var}: {v:?}");
+        }
+        // With one, a rest beta measured well is still refused, an uncertain one is not.
+        ds.temp = Some(vec![25.0; ds.len()]);
+        let sharp = checked(&ds, 1e-6);
+        assert!(!sharp.accepted && !sharp.keep, "{sharp:?}");
+        let vague = checked(&ds, 1e6);
+        assert!(vague.gain_rest_se.is_some_and(|se| se > 1.0), "{vague:?}");
+        assert!(vague.accepted && vague.keep, "{vague:?}");
+    }
+
+    #[test]
     fn a_loop_follows_the_direction_and_a_staircase_does_not() {
         let ds = presses();
         let dfdt = slope(&ds);
