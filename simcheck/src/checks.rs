@@ -28,6 +28,16 @@ pub fn signature_check(
             v.accepted = false;
             v.keep = false;
         }
+        // Between mountings, a slow factor sampled at a few knots can take the steps each
+        // remounting leaves: it must also lower the residual within the mountings.
+        if ds.trial_recorded && ds.n_trials >= 2 {
+            let beta = within_trial_beta(ds, noise, before, after);
+            v.within_trial_beta = beta.is_finite().then_some(beta);
+            if beta.is_finite() && beta <= 0.5 {
+                v.accepted = false;
+                v.keep = false;
+            }
+        }
     }
     // Thermal drift is a gain: it must carry the residual alike near the rest level and far
     // above it (an additive wander common to the nodes, fitted as a factor, does not).
@@ -335,6 +345,54 @@ fn rest_block_t_as_recorded(ds: &Dataset, noise: &NoiseModel, before: &Cv, after
     crate::cv::block_t_of(&b, &a)
 }
 
+/// How much of the residual within each mounting (trial) a latent drift's change carries:
+/// with `r` the current held-out residual as recorded (the common wander put back, as in
+/// [`gain_betas`]) and `d` the change, each taken relative to its mean over the trial per node,
+/// `beta = sum d (-r) / sum d^2`. The change lowers the residual's SSE within the trials by
+/// `(2 beta - 1) sum d^2`: above 0.5 it helps there, at or below it its gain is all between the
+/// trials, where remounting steps a factor can stand in for are. `NaN` when the change does not
+/// move within a trial.
+pub fn within_trial_beta(ds: &Dataset, noise: &NoiseModel, before: &Cv, after: &Cv) -> f64 {
+    let (len, n, trials) = (ds.len(), ds.n, ds.n_trials.max(1));
+    let w = &noise.wander.taken_out;
+    let recorded = |i: usize, idx: usize| before.resid[idx] + w.get(i).copied().unwrap_or(0.0);
+    let used = |idx: usize| before.resid[idx] != 0.0 || after.resid[idx] != 0.0;
+    // Per trial and node: the sums of d and r and the count.
+    let mut sums = vec![(0.0, 0.0, 0usize); trials * n];
+    for i in 0..len {
+        let j = ds.trial[i].min(trials - 1);
+        for k in 0..n {
+            let idx = i * n + k;
+            if used(idx) {
+                let s = &mut sums[j * n + k];
+                s.0 += after.resid[idx] - before.resid[idx];
+                s.1 += recorded(i, idx);
+                s.2 += 1;
+            }
+        }
+    }
+    let (mut num, mut den) = (0.0, 0.0);
+    for i in 0..len {
+        let j = ds.trial[i].min(trials - 1);
+        for k in 0..n {
+            let idx = i * n + k;
+            let (sd, sr, c) = sums[j * n + k];
+            if !used(idx) || c == 0 {
+                continue;
+            }
+            let d = after.resid[idx] - before.resid[idx] - sd / c as f64;
+            let r = recorded(i, idx) - sr / c as f64;
+            num -= d * r;
+            den += d * d;
+        }
+    }
+    if den > 0.0 {
+        num / den
+    } else {
+        f64::NAN
+    }
+}
+
 /// Block t statistic thermal drift needs on no-load samples.
 pub const MIN_REST_T: f64 = 2.0;
 
@@ -436,6 +494,7 @@ mod tests {
             loop_removed: None,
             gain_betas: None,
             gain_rest_se: None,
+            within_trial_beta: None,
             weighted_t: 5.0,
             change_blocks: 10.0,
         };
@@ -468,6 +527,28 @@ mod tests {
         let vague = checked(&ds, 1e6);
         assert!(vague.gain_rest_se.is_some_and(|se| se > 1.0), "{vague:?}");
         assert!(vague.accepted && vague.keep, "{vague:?}");
+    }
+
+    #[test]
+    fn a_drift_must_lower_the_residual_within_mountings_not_only_between_them() {
+        let mut ds = presses();
+        let len = ds.len();
+        ds.n_trials = 4;
+        ds.trial = (0..len).map(|i| i * 4 / len).collect();
+        ds.trial_recorded = true;
+        let noise = NoiseModel::white(1, 1.0);
+        let slow: Vec<f64> = (0..len).map(|i| i as f64 / len as f64).collect();
+        // A drift the residual really has: the change that takes it out carries it within the
+        // trials too.
+        let drift: Vec<f64> = slow.iter().map(|u| 2.0 * u).collect();
+        let beta = within_trial_beta(&ds, &noise, &cv(drift), &cv(vec![1e-9; len]));
+        assert!((beta - 1.0).abs() < 1e-6, "{beta}");
+        // Remounting steps (constant within each trial) taken by a smooth ramp: its gain is
+        // all between the trials.
+        let steps: Vec<f64> = ds.trial.iter().map(|&j| [0.0, 1.5, 0.5, 2.0][j]).collect();
+        let after: Vec<f64> = steps.iter().zip(&slow).map(|(r, u)| r - 2.0 * u).collect();
+        let beta = within_trial_beta(&ds, &noise, &cv(steps), &cv(after));
+        assert!(beta.abs() < 1e-6, "{beta}");
     }
 
     #[test]

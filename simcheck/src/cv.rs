@@ -164,6 +164,9 @@ pub struct Verdict {
     /// Thermal drift only: the standard error of the rest beta of `gain_betas` in the noise
     /// model.
     pub gain_rest_se: Option<f64>,
+    /// Latent thermal drift with trials only: how much of the residual within the trials its
+    /// change carries (see `checks::within_trial_beta`).
+    pub within_trial_beta: Option<f64>,
     /// The per-block gains measured against the size of the change in each block (see
     /// [`change_weighted_t`]).
     pub weighted_t: f64,
@@ -300,6 +303,7 @@ pub fn compare(
         loop_removed: None,
         gain_betas: None,
         gain_rest_se: None,
+        within_trial_beta: None,
         weighted_t,
         change_blocks,
     }

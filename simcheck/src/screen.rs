@@ -52,6 +52,7 @@ mod tests {
             loop_removed: None,
             gain_betas: None,
             gain_rest_se: None,
+            within_trial_beta: None,
             weighted_t: 0.0,
             change_blocks: 0.0,
         };

@@ -458,6 +458,7 @@ impl Selection<'_> {
                     v = Verdict {
                         gain_betas: v.gain_betas,
                         gain_rest_se: v.gain_rest_se,
+                        within_trial_beta: v.within_trial_beta,
                         ..checked
                     };
                 }
