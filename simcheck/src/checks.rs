@@ -1,5 +1,6 @@
 //! Physics an effect must show beyond a lower held-out error: thermal drift inferred without a
-//! temperature column must also improve the no-load samples, and hysteresis must be
+//! temperature column must also improve the no-load samples (and, across mountings, the
+//! residual within them); thermal drift must act as a gain; hysteresis must be a loop and
 //! rate-independent.
 
 use crate::cv::{Cv, Verdict};
@@ -9,7 +10,9 @@ use crate::noise::NoiseModel;
 
 /// Physics an effect must show beyond a lower error: thermal drift inferred without a
 /// temperature column must also improve the no-load samples (temperature moves unloaded
-/// nodes; creep and hysteresis cannot); hysteresis must be rate-independent.
+/// nodes; creep and hysteresis cannot) and, on a recording of several mountings, the residual
+/// within them ([`within_trial_beta`]); thermal drift must act as a gain ([`gain_betas`]);
+/// hysteresis must be a loop and rate-independent.
 pub fn signature_check(
     ds: &Dataset,
     noise: &NoiseModel,
