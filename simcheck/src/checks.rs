@@ -282,10 +282,7 @@ pub fn gain_betas(ds: &Dataset, noise: &NoiseModel, before: &Cv, after: &Cv) -> 
     }
     far.sort_by(|a, b| b.0.total_cmp(&a.0));
     far.truncate(far.len() / 2);
-    // The residual as recorded: the wander taken out of the readings put back (it took a
-    // drift's rest share with it).
-    let w = &noise.wander.taken_out;
-    let recorded = |j: usize| before.resid[j] + w.get(j / n.max(1)).copied().unwrap_or(0.0);
+    let recorded = |j: usize| resid_as_recorded(noise, before, j, n);
     let beta = |idx: &mut dyn Iterator<Item = usize>| -> (f64, f64) {
         let (mut num, mut den, mut count) = (0.0, 0.0, 0usize);
         for j in idx {
@@ -348,6 +345,13 @@ fn rest_block_t_as_recorded(ds: &Dataset, noise: &NoiseModel, before: &Cv, after
     crate::cv::block_t_of(&b, &a)
 }
 
+/// The held-out residual at node-sample `idx` (`n` nodes) as recorded: the common wander taken
+/// out of the readings put back (it took a drift's rest share with it).
+fn resid_as_recorded(noise: &NoiseModel, before: &Cv, idx: usize, n: usize) -> f64 {
+    let w = &noise.wander.taken_out;
+    before.resid[idx] + w.get(idx / n.max(1)).copied().unwrap_or(0.0)
+}
+
 /// How much of the residual within each mounting (trial) a latent drift's change carries:
 /// with `r` the current held-out residual as recorded (the common wander put back, as in
 /// [`gain_betas`]) and `d` the change, each taken relative to its mean over the trial per node,
@@ -357,8 +361,7 @@ fn rest_block_t_as_recorded(ds: &Dataset, noise: &NoiseModel, before: &Cv, after
 /// move within a trial.
 pub fn within_trial_beta(ds: &Dataset, noise: &NoiseModel, before: &Cv, after: &Cv) -> f64 {
     let (len, n, trials) = (ds.len(), ds.n, ds.n_trials.max(1));
-    let w = &noise.wander.taken_out;
-    let recorded = |i: usize, idx: usize| before.resid[idx] + w.get(i).copied().unwrap_or(0.0);
+    let recorded = |idx: usize| resid_as_recorded(noise, before, idx, n);
     let used = |idx: usize| before.resid[idx] != 0.0 || after.resid[idx] != 0.0;
     // Per trial and node: the sums of d and r and the count.
     let mut sums = vec![(0.0, 0.0, 0usize); trials * n];
@@ -369,7 +372,7 @@ pub fn within_trial_beta(ds: &Dataset, noise: &NoiseModel, before: &Cv, after: &
             if used(idx) {
                 let s = &mut sums[j * n + k];
                 s.0 += after.resid[idx] - before.resid[idx];
-                s.1 += recorded(i, idx);
+                s.1 += recorded(idx);
                 s.2 += 1;
             }
         }
@@ -384,7 +387,7 @@ pub fn within_trial_beta(ds: &Dataset, noise: &NoiseModel, before: &Cv, after: &
                 continue;
             }
             let d = after.resid[idx] - before.resid[idx] - sd / c as f64;
-            let r = recorded(i, idx) - sr / c as f64;
+            let r = recorded(idx) - sr / c as f64;
             num -= d * r;
             den += d * d;
         }
@@ -492,14 +495,9 @@ mod tests {
             rest_block_t: 5.0,
             rest_rel_gain: 0.2,
             keep: true,
-            ramp_betas: None,
-            loop_share: None,
-            loop_removed: None,
-            gain_betas: None,
-            gain_rest_se: None,
-            within_trial_beta: None,
             weighted_t: 5.0,
             change_blocks: 10.0,
+            ..Verdict::default()
         };
         let checked = |ds: &Dataset, var: f64| {
             let mut v = verdict();

@@ -124,8 +124,9 @@ pub fn cross_validate_from(
     }
 }
 
-/// How strongly a richer model beats a simpler one on held-out data.
-#[derive(Debug, Clone, Copy, serde::Serialize)]
+/// How strongly a richer model beats a simpler one on held-out data (the default: no gain,
+/// nothing measured, not accepted).
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
 pub struct Verdict {
     pub rmse_before: f64,
     pub rmse_after: f64,

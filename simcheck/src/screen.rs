@@ -38,23 +38,9 @@ mod tests {
             rmse_before: 1.0,
             rmse_after: (1.0 - gain).sqrt(),
             rel_gain: gain,
-            block_t: 0.0,
-            blocks_improved: 0.0,
-            rank_z: 0.0,
             n_eff: 100.0,
             ic_gain: -1.0,
-            accepted: false,
-            rest_block_t: 0.0,
-            rest_rel_gain: 0.0,
-            keep: false,
-            ramp_betas: None,
-            loop_share: None,
-            loop_removed: None,
-            gain_betas: None,
-            gain_rest_se: None,
-            within_trial_beta: None,
-            weighted_t: 0.0,
-            change_blocks: 0.0,
+            ..Verdict::default()
         };
         assert!(!worth_full_test(&v(-0.02)));
         assert!(!worth_full_test(&v(0.002)));

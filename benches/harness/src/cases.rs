@@ -125,47 +125,22 @@ pub(crate) fn cases_table(
                 move |n| skin::many("skin_16_sensors", 16, secs, rate, n, &c)
             }),
         ),
-        (
-            "skin_64_sensors",
-            Box::new({
-                let c = cal_s.clone();
-                let k = skin::Skin {
-                    sensors: 64,
-                    shared: true,
-                    secs,
-                    rate,
-                    realtime: None,
-                };
-                move |n| skin::skin("skin_64_sensors", k, n, &c)
-            }),
-        ),
-        (
+        skin_64("skin_64_sensors", true, None, secs, rate, &cal_s),
+        skin_64(
             "skin_64_sensors_realtime",
-            Box::new({
-                let c = cal_s.clone();
-                let k = skin::Skin {
-                    sensors: 64,
-                    shared: true,
-                    secs,
-                    rate,
-                    realtime: Some(skin::REALTIME),
-                };
-                move |n| skin::skin("skin_64_sensors_realtime", k, n, &c)
-            }),
+            true,
+            Some(skin::REALTIME),
+            secs,
+            rate,
+            &cal_s,
         ),
-        (
+        skin_64(
             "skin_64_sensors_per_process",
-            Box::new({
-                let c = cal_s.clone();
-                let k = skin::Skin {
-                    sensors: 64,
-                    shared: false,
-                    secs,
-                    rate,
-                    realtime: None,
-                };
-                move |n| skin::skin("skin_64_sensors_per_process", k, n, &c)
-            }),
+            false,
+            None,
+            secs,
+            rate,
+            &cal_s,
         ),
         (
             "skin_max_sensors",
@@ -175,6 +150,27 @@ pub(crate) fn cases_table(
             }),
         ),
     ]
+}
+
+/// A 64-sensor skin case: one process per role for every sensor (`shared`) or a process per
+/// sensor, at SCHED_FIFO `realtime` when given.
+fn skin_64(
+    name: &'static str,
+    shared: bool,
+    realtime: Option<u8>,
+    secs: f64,
+    rate: f64,
+    cal: &str,
+) -> (&'static str, Case) {
+    let k = skin::Skin {
+        sensors: 64,
+        shared,
+        secs,
+        rate,
+        realtime,
+    };
+    let c = cal.to_string();
+    (name, Box::new(move |n| skin::skin(name, k, n, &c)))
 }
 
 /// `max_rate_zero_loss`: the force path at 1 kHz (three tries), then at doubling rates while

@@ -155,7 +155,7 @@ mod tests {
         std::thread::sleep(std::time::Duration::from_millis(500));
         let l = s.finish();
         // 500 ms at 100 Hz: whatever the machine's lateness, the sleeper woke and counted.
-        assert!(l.wakeups >= 10 && l.wakeups <= 51, "{l:?}");
+        assert!(l.wakeups >= 1 && l.wakeups <= 51, "{l:?}");
         assert!(l.p50_us >= 0.0 && l.max_us >= l.p50_us, "{l:?}");
     }
 
