@@ -42,6 +42,11 @@ pub struct Context<'a> {
     /// continuous loaded span. Creep is seen while a load is held; a slower "creep" could not be
     /// told from a drift, so it is not allowed to stand in for one.
     pub creep_tau_max: f64,
+    /// Shortest creep time constant (s): the median time a press takes to rise (see
+    /// [`median_rise_time`]). A low-pass faster than the load's own rise follows the load within
+    /// the ramp, a function of the load as it stands: a static law's shape (under load: a step
+    /// in the law where the load comes on), not creep.
+    pub creep_tau_min: f64,
     /// Widest hysteresis (N): a third of the peak force. A play or a Bouc-Wen saturation that
     /// only the largest presses reach is a memory of the largest load, not a loop; it would
     /// stand in for what another effect's form leaves.
@@ -137,6 +142,7 @@ impl<'a> Context<'a> {
             .collect();
         let (block, n_blocks) = blocks(ds);
         let creep_tau_max = 3.0 * longest_loaded_span(ds);
+        let creep_tau_min = median_rise_time(ds).min(creep_tau_max);
         let load_scale = load_scale(ds, &g_obs, &rest);
         let force_deadband = force_deadband(&ds.force);
         // At most 2 % of the peak force: on a slowly sampled recording the first differences
@@ -156,6 +162,7 @@ impl<'a> Context<'a> {
             block,
             n_blocks,
             creep_tau_max,
+            creep_tau_min,
             hyst_r_max: ds.max_force() / 3.0,
             load_scale,
             force_deadband,
@@ -180,6 +187,7 @@ impl<'a> Context<'a> {
             block: self.block.clone(),
             n_blocks: self.n_blocks,
             creep_tau_max: self.creep_tau_max,
+            creep_tau_min: self.creep_tau_min,
             hyst_r_max: self.hyst_r_max,
             load_scale: self.load_scale.clone(),
             force_deadband: self.force_deadband,
@@ -336,6 +344,38 @@ pub fn longest_loaded_span(ds: &Dataset) -> f64 {
     best.max(ds.dt())
 }
 
+/// The median time a press takes to rise (s): over each span above 5 % of the peak force that
+/// reaches 20 % of it (smaller spans are the load cell's noise or a touch), the time from the
+/// span's start to its first sample at 90 % of the span's own peak. 0 without such a span.
+pub fn median_rise_time(ds: &Dataset) -> f64 {
+    let fmax = ds.max_force();
+    let on = 0.05 * fmax;
+    let mut rises = Vec::new();
+    let mut i = 0;
+    while i < ds.len() {
+        if ds.force[i] <= on {
+            i += 1;
+            continue;
+        }
+        let start = i;
+        while i < ds.len() && ds.force[i] > on {
+            i += 1;
+        }
+        let span = &ds.force[start..i];
+        let peak = span.iter().copied().fold(0.0, f64::max);
+        if peak >= 0.2 * fmax {
+            if let Some(j) = span.iter().position(|&f| f >= 0.9 * peak) {
+                rises.push(ds.t[start + j] - ds.t[start]);
+            }
+        }
+    }
+    if rises.is_empty() {
+        return 0.0;
+    }
+    rises.sort_by(f64::total_cmp);
+    rises[rises.len() / 2]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -347,5 +387,30 @@ mod tests {
         // The longest press: two 2 s ramps around a 1 s hold, above 10 % of the 14 N peak.
         let span = longest_loaded_span(&ds);
         assert!(span > 4.0 && span < 5.0, "{span}");
+    }
+
+    #[test]
+    fn the_median_rise_time_bounds_creep_from_below() {
+        let mut ds = presses();
+        // 1 s at rest, a 1 s ramp to 10 N, 2 s held, 1 s down, over and over: from 5 % to 90 %
+        // of the peak takes 0.85 s. A one-sample blip to 1 N (under 20 % of the peak) in each
+        // rest is not a press.
+        for (i, f) in ds.force.iter_mut().enumerate() {
+            let s = (i % 500) as f64 * 0.01;
+            *f = match s {
+                s if s < 1.0 => {
+                    if i % 500 == 50 {
+                        1.0
+                    } else {
+                        0.0
+                    }
+                }
+                s if s < 2.0 => 10.0 * (s - 1.0),
+                s if s < 4.0 => 10.0,
+                s => 10.0 * (5.0 - s),
+            };
+        }
+        let rise = median_rise_time(&ds);
+        assert!((rise - 0.85).abs() < 0.015, "{rise}");
     }
 }

@@ -207,7 +207,7 @@ pub fn diagnose_with(
     if let Some(terms) = &mut cur.creep {
         terms
             .iter_mut()
-            .for_each(|t| t.1 = t.1.min(ctx.creep_tau_max));
+            .for_each(|t| t.1 = t.1.min(ctx.creep_tau_max).max(ctx.creep_tau_min));
     }
     cur.hysteresis = cur.hysteresis.map(|r| r.min(ctx.hyst_r_max));
     if cur.hyst_preisach {

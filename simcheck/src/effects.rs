@@ -67,7 +67,7 @@ pub struct Config {
     /// slow, and a middle one when the criterion pays for it: log-time creep spans decades).
     /// The amplitudes are
     /// non-negative (under a held force the sensor's deformation, and so its conductance, only
-    /// grows) and each `tau` is at most `Context::creep_tau_max`.
+    /// grows) and each `tau` lies within `Context::creep_tau_min..=creep_tau_max`.
     pub creep: Option<Vec<(f64, f64)>>,
     /// Creep that stays with the load (`L = F (1 + sum c lowpass_tau(on))`, `on` = 1 while the
     /// force is above 5 % of its peak): it grows under a held load and is gone as the load is,

@@ -17,7 +17,7 @@ pub fn load_series(
     f: impl Iterator<Item = f64>,
     dt: &[f64],
     cfg: &Config,
-    tau_max: f64,
+    tau: (f64, f64),
     on_n: f64,
     need: Option<&[bool]>,
     out: &mut Vec<f64>,
@@ -27,7 +27,7 @@ pub fn load_series(
     let mut step: Vec<StepFactors> = cfg.creep.as_ref().map_or_else(Vec::new, |terms| {
         terms
             .iter()
-            .map(|&(_, tau)| StepFactors::new(tau.min(tau_max)))
+            .map(|&(_, t)| StepFactors::new(t.min(tau.1).max(tau.0)))
             .collect()
     });
     for (i, fi) in f.enumerate() {

@@ -57,7 +57,7 @@ impl Grid {
     }
 
     /// The load series of the load `f` (see [`load_series`]) and its largest value.
-    fn series(&self, f: impl Iterator<Item = f64>, cfg: &Config, tau_max: f64) -> Vec<f64> {
+    fn series(&self, f: impl Iterator<Item = f64>, cfg: &Config, tau_max: (f64, f64)) -> Vec<f64> {
         let mut p = Vec::with_capacity(self.t.len());
         load_series(
             f,
@@ -83,7 +83,7 @@ impl Loads {
         let ds = ctx.ds;
         let len = ds.len();
         let grid = Grid::new(ctx, need, step);
-        let tau_max = ctx.creep_tau_max;
+        let tau_max = (ctx.creep_tau_min, ctx.creep_tau_max);
         let knee = cfg.hyst_bouc_wen.then(|| Knee::new(cfg.hyst_bw_n));
         let relays = (cfg.hyst_preisach && cfg.hysteresis.is_some()).then(|| {
             let (h0, mu, sigma) = preisach_acting(ctx, cfg);
