@@ -253,11 +253,22 @@ fn candidate_variants(
                 .collect()
         };
         let (u2, u3) = (under(&starts), under(&three));
+        // Prony creep that recovers at its own pace: slower (or faster) than it set in.
+        let slow_back: Vec<Config> = starts
+            .iter()
+            .map(|s| Config {
+                creep_recovery: 3.0,
+                ..s.clone()
+            })
+            .collect();
+        let mut p_back = params.clone();
+        p_back.push(Param::CreepLnRecovery);
         return vec![
             (starts, params.clone()),
             (three, p3.clone()),
             (u2, params),
             (u3, p3),
+            (slow_back, p_back),
         ];
     }
     if e == EffectKind::CurvatureSensitivity && ctx.ds.kappa.is_none() {
@@ -409,7 +420,11 @@ pub struct ParamCount {
 /// Parameters effect `e` adds to `cfg` (which holds it: a latent drift's knots count).
 pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
     let (global, per_node) = match e {
-        EffectKind::Creep => (2 * cfg.creep.as_ref().map_or(2, Vec::len), 0),
+        // Creep: each term's amplitude and time constant, and the recovery's pace if its own.
+        EffectKind::Creep => (
+            2 * cfg.creep.as_ref().map_or(2, Vec::len) + usize::from(cfg.creep_recovery != 1.0),
+            0,
+        ),
         // In the load path: half-width, mix and share; or Bouc-Wen saturation, exponent, share;
         // or Preisach half-width, centre, spread and share.
         // The additive Bouc-Wen: saturation, exponent, asymmetry and start state, and per
@@ -464,19 +479,27 @@ mod tests {
             assert_eq!(n_params(cfg, EffectKind::ThermalDrift).global, *k);
         }
         // Creep: two Prony terms, or three (charged two parameters more), each also as creep
-        // that stays with the load.
+        // that stays with the load; and two Prony terms recovering at their own pace (charged
+        // one more).
         let creep = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Creep);
-        assert_eq!(creep.len(), 4);
-        for ((starts, params), (terms, under)) in
-            creep
-                .iter()
-                .zip([(2, false), (3, false), (2, true), (3, true)])
-        {
+        assert_eq!(creep.len(), 5);
+        for ((starts, params), (terms, under, own_pace)) in creep.iter().zip([
+            (2, false, false),
+            (3, false, false),
+            (2, true, false),
+            (3, true, false),
+            (2, false, true),
+        ]) {
             let cfg = &starts[0];
             assert_eq!(cfg.creep.as_ref().map(Vec::len), Some(terms));
             assert!(starts.iter().all(|c| c.creep_under_load == under));
-            assert_eq!(n_params(cfg, EffectKind::Creep).global, 2 * terms);
+            assert!(starts.iter().all(|c| (c.creep_recovery != 1.0) == own_pace));
+            assert_eq!(
+                n_params(cfg, EffectKind::Creep).global,
+                2 * terms + usize::from(own_pace)
+            );
             assert!(params.contains(&Param::CreepLnTau(terms - 1)));
+            assert_eq!(params.contains(&Param::CreepLnRecovery), own_pace);
         }
         // Hysteresis: additive with one amplitude per node, or in the load path with one
         // global share (charged three global parameters and none per node), or a Bouc-Wen

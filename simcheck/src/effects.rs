@@ -74,6 +74,11 @@ pub struct Config {
     /// with no recovery tail, where the Prony form above (linear viscoelastic superposition)
     /// recovers with the same time constants after unloading.
     pub creep_under_load: bool,
+    /// Creep that recovers more slowly (or faster) than it grows: while a term's state falls
+    /// (the load, or the load being on, has dropped below it) its time constant is this many
+    /// times its growth's (1: linear viscoelastic recovery with the same time constants; a
+    /// polymer's creep often recovers more slowly than it set in).
+    pub creep_recovery: f64,
     /// Hysteresis: half-width `r` (N) of the play operators; the amplitudes are per node.
     pub hysteresis: Option<f64>,
     /// Hysteresis loop shape: the gap is `gap_r + mix gap_4r` (0: sharp corners; larger:
@@ -149,6 +154,7 @@ impl Config {
             saturation: false,
             creep: None,
             creep_under_load: false,
+            creep_recovery: 1.0,
             hysteresis: None,
             hyst_mix: 0.0,
             hyst_share: None,
@@ -205,6 +211,7 @@ impl Config {
             EffectKind::Creep => {
                 c.creep = None;
                 c.creep_under_load = false;
+                c.creep_recovery = 1.0;
             }
             EffectKind::Hysteresis => {
                 c.hysteresis = None;
@@ -244,6 +251,7 @@ impl Config {
             EffectKind::Creep => {
                 c.creep.clone_from(&from.creep);
                 c.creep_under_load = from.creep_under_load;
+                c.creep_recovery = from.creep_recovery;
             }
             EffectKind::Hysteresis => {
                 c.hysteresis = from.hysteresis;
@@ -277,6 +285,7 @@ impl Config {
             EffectKind::Creep => {
                 self.creep.as_ref().map(Vec::len) == other.creep.as_ref().map(Vec::len)
                     && self.creep_under_load == other.creep_under_load
+                    && (self.creep_recovery == 1.0) == (other.creep_recovery == 1.0)
             }
             EffectKind::Hysteresis => {
                 self.hyst_share.is_some() == other.hyst_share.is_some()

@@ -30,6 +30,15 @@ pub fn load_series(
             .map(|&(_, t)| StepFactors::new(t.min(tau.1).max(tau.0)))
             .collect()
     });
+    // The recovery's (a falling state's) step factors, when it has its own time constants.
+    let recovers = cfg.creep_recovery != 1.0;
+    let mut back: Vec<StepFactors> = match &cfg.creep {
+        Some(terms) if recovers => terms
+            .iter()
+            .map(|&(_, t)| StepFactors::new(t.min(tau.1).max(tau.0) * cfg.creep_recovery))
+            .collect(),
+        _ => Vec::new(),
+    };
     for (i, fi) in f.enumerate() {
         let mut l = fi.max(0.0);
         if let Some(terms) = &cfg.creep {
@@ -42,9 +51,16 @@ pub fn load_series(
                 base
             };
             let mut extra = 0.0;
-            for ((st, &(c, _)), cache) in s.iter_mut().zip(terms).zip(step.iter_mut()) {
+            for (j, ((st, &(c, _)), cache)) in
+                s.iter_mut().zip(terms).zip(step.iter_mut()).enumerate()
+            {
                 if i > 0 {
-                    *st += (input - *st) * cache.at(dt[i]);
+                    let f = if recovers && input < *st {
+                        back[j].at(dt[i])
+                    } else {
+                        cache.at(dt[i])
+                    };
+                    *st += (input - *st) * f;
                 }
                 if cfg.creep_under_load {
                     extra += c * *st;
@@ -240,6 +256,41 @@ pub fn latent_knots_n(ds: &Dataset, k: usize) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn creep_recovers_at_its_own_pace() {
+        // 10 s held at 1 N, then 30 s unloaded, sampled at 10 Hz; one Prony term (c 0.5, 2 s).
+        let f: Vec<f64> = (0..400).map(|i| if i < 100 { 1.0 } else { 0.0 }).collect();
+        let dt = vec![0.1; f.len()];
+        let run = |recovery: f64| -> Vec<f64> {
+            let cfg = Config {
+                creep: Some(vec![(0.5, 2.0)]),
+                creep_recovery: recovery,
+                ..Config::base(1.0, 1.0)
+            };
+            let mut out = Vec::new();
+            load_series(
+                f.iter().copied(),
+                &dt,
+                &cfg,
+                (0.05, 100.0),
+                0.05,
+                None,
+                &mut out,
+            );
+            out
+        };
+        let (same, slow) = (run(1.0), run(3.0));
+        // Creeping in, both forms are the same: 1 + 0.5 (1 - exp(-t / 2)).
+        assert_eq!(same[..100], slow[..100]);
+        let expect = 1.0 + 0.5 * (1.0 - (-9.9f64 / 2.0).exp());
+        assert!((same[99] - expect).abs() < 1e-9, "{}", same[99]);
+        // Unloaded 2 s later: the tail has fallen by exp(-2 / 2) with the same time constant
+        // and by exp(-2 / 6) with three times it.
+        let peak = 0.5 * (1.0 - (-9.9f64 / 2.0).exp());
+        assert!((same[119] - peak * (-2.0f64 / 2.0).exp()).abs() < 1e-9);
+        assert!((slow[119] - peak * (-2.0f64 / 6.0).exp()).abs() < 1e-9);
+    }
 
     #[test]
     fn the_tabulated_knee_matches_powf() {

@@ -13,6 +13,7 @@ pub enum Param {
     LnFloor,
     CreepC(usize),
     CreepLnTau(usize),
+    CreepLnRecovery,
     HystLnR,
     HystMix,
     HystShare,
@@ -41,6 +42,7 @@ impl Param {
                 .as_ref()
                 .and_then(|v| v.get(j))
                 .map_or(0.0, |t| t.1.ln()),
+            Param::CreepLnRecovery => c.creep_recovery.ln(),
             Param::HystLnR => c.hysteresis.map_or(0.0, |r| r.max(1e-9).ln()),
             Param::HystMix => c.hyst_mix,
             Param::HystShare => c.hyst_share.unwrap_or(0.0),
@@ -79,6 +81,7 @@ impl Param {
                     t.1 = v.clamp(0.05f64.ln(), 5000f64.ln()).exp();
                 }
             }
+            Param::CreepLnRecovery => c.creep_recovery = v.clamp(-3.0, 3.0).exp(),
             Param::HystLnR => {
                 if let Some(r) = &mut c.hysteresis {
                     *r = v.clamp(-12.0, 8.0).exp();
@@ -302,6 +305,9 @@ pub fn all_params(cfg: &Config, has_kappa: bool) -> Vec<Param> {
     if let Some(terms) = &cfg.creep {
         for j in 0..terms.len() {
             p.extend([Param::CreepC(j), Param::CreepLnTau(j)]);
+        }
+        if cfg.creep_recovery != 1.0 {
+            p.push(Param::CreepLnRecovery);
         }
     }
     if cfg.hysteresis.is_some() {

@@ -318,7 +318,7 @@ impl Selection<'_> {
     }
 
     /// Effect `e`'s variants worth holding out: all of them when there are two or fewer; else
-    /// the two (three when there are five or more: hysteresis's forms) whose best starting
+    /// the two (three of hysteresis's five or more forms) whose best starting
     /// point on the whole recording scores best,
     /// `T ln(SSE) + 2 k ln(T)` with `T` the time samples over ten (a crude charge for the extra
     /// terms). The held-out test then decides between them and the criterion
@@ -350,7 +350,11 @@ impl Selection<'_> {
         // A fifth hysteresis form (the additive Bouc-Wen) must not crowd out one of the four
         // from the held-out test: its starting points rank high on per-node amplitudes, and
         // took the load-path Bouc-Wen's place on zoo-log's loop (hold-out seed 205).
-        let keep = if scored.len() >= 5 { 3 } else { 2 };
+        let keep = if e == EffectKind::Hysteresis && scored.len() >= 5 {
+            3
+        } else {
+            2
+        };
         scored.into_iter().take(keep).map(|(_, v)| v).collect()
     }
 

@@ -33,6 +33,9 @@ pub fn extended_model(
     if cfg.thermal_gain_only {
         notes.push("thermal_drift was found on the force term only (the unloaded conductance does not follow the temperature); taxel-sim's thermal drift scales the whole conductance: SIM.toml carries alpha and tau in that form".into());
     }
+    if cfg.creep.is_some() && cfg.creep_recovery != 1.0 {
+        notes.push(format!("creep was found recovering at its own pace: after the load falls each term's time constant is {:.2} times its creep's; taxel-sim's Prony creep recovers with the same time constants: SIM.toml carries the creep's", cfg.creep_recovery));
+    }
     if cfg.creep_under_load {
         notes.push("creep was found in the form that stays with the load (L = F (1 + sum c lowpass(load on)), no recovery tail after unloading); taxel-sim's creep is the Prony form, which recovers after unloading: SIM.toml carries the same amplitudes and time constants in that form".into());
     }
