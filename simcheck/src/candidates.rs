@@ -367,12 +367,22 @@ fn candidate_variants(
             .collect();
         let mut p_abw = no_mix;
         p_abw.extend([Param::HystLnN, Param::HystAsym, Param::HystZ0]);
+        // The same with a remnant that grows with the largest load so far, virgin starts.
+        let remnant: Vec<Config> = additive_bw
+            .iter()
+            .filter(|s| s.hyst_bw_z0 == 0.0)
+            .map(|s| Config {
+                hyst_remnant: true,
+                ..s.clone()
+            })
+            .collect();
         return vec![
             (starts, params),
             (in_load, p_load),
             (bouc_wen, p_bw),
             (preisach, p_pr),
-            (additive_bw, p_abw),
+            (additive_bw, p_abw.clone()),
+            (remnant, p_abw),
         ];
     }
     if e == EffectKind::ThermalDrift && ctx.ds.temp.is_some() {
@@ -429,7 +439,14 @@ pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
         // or Preisach half-width, centre, spread and share.
         // The additive Bouc-Wen: saturation, exponent, asymmetry and start state, and per
         // node an amplitude and its growth with the load.
-        EffectKind::Hysteresis if cfg.hyst_bouc_wen && cfg.hyst_share.is_none() => (4, 2),
+        EffectKind::Hysteresis if cfg.hyst_bouc_wen && cfg.hyst_share.is_none() => (
+            4,
+            2 + if cfg.hyst_remnant {
+                crate::effects::REMNANT_RAMPS
+            } else {
+                0
+            },
+        ),
         EffectKind::Hysteresis if cfg.hyst_preisach || cfg.hyst_bouc_wen => (4, 0),
         EffectKind::Hysteresis if cfg.hyst_share.is_some() => (3, 0),
         EffectKind::Hysteresis => (2, 1),
@@ -505,7 +522,7 @@ mod tests {
         // global share (charged three global parameters and none per node), or a Bouc-Wen
         // state in the load path (saturation, share and exponent instead of the plays' mix).
         let hyst = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Hysteresis);
-        assert_eq!(hyst.len(), 5);
+        assert_eq!(hyst.len(), 6);
         let (additive, in_load, bouc_wen) = (&hyst[0], &hyst[1], &hyst[2]);
         let preisach = &hyst[3];
         // The additive Bouc-Wen: its start state searched, virgin and unloaded starts, two
@@ -524,6 +541,22 @@ mod tests {
                 per_node: 2
             }
         );
+        // The additive Bouc-Wen with a remnant: virgin starts, three ramps more per node.
+        let remnant = &hyst[5];
+        assert!(remnant
+            .0
+            .iter()
+            .all(|c| c.hyst_remnant && c.hyst_bouc_wen && c.hyst_bw_z0 == 0.0));
+        assert_eq!(
+            n_params(&remnant.0[0], EffectKind::Hysteresis),
+            ParamCount {
+                global: 4,
+                per_node: 2 + crate::effects::REMNANT_RAMPS
+            }
+        );
+        assert!(hyst[..5]
+            .iter()
+            .all(|v| v.0.iter().all(|c| !c.hyst_remnant)));
         assert!(preisach
             .0
             .iter()

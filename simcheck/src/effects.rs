@@ -111,6 +111,12 @@ pub struct Config {
     /// saturation, -1..=1 (0: the virgin state; -1: last unloaded from a large load). A
     /// recording starts with whatever history the sensor had.
     pub hyst_bw_z0: f64,
+    /// With the additive Bouc-Wen: a remnant, each node's own function of the largest force so
+    /// far ([`REMNANT_RAMPS`] ramps, one amplitude each per node). A first load to a new
+    /// level leaves the reading at rest raised for good (the Mullins effect of a filled
+    /// polymer, why piezoresistive sensors are pre-conditioned); a loop alone returns to its
+    /// rest level.
+    pub hyst_remnant: bool,
     /// In-load hysteresis as a Preisach model instead (see [`crate::preisach`]): relays on the
     /// node's own load, half-widths around `hysteresis` (N), centres around `preis_mu` (N)
     /// with sd `preis_sigma` (N); the share is `hyst_share`.
@@ -163,6 +169,7 @@ impl Config {
             hyst_bw_asym: 0.0,
             hyst_bw_z0: 0.0,
             hyst_preisach: false,
+            hyst_remnant: false,
             preis_mu: 0.0,
             preis_sigma: 1.0,
             thermal: None,
@@ -221,6 +228,7 @@ impl Config {
                 c.hyst_bw_asym = 0.0;
                 c.hyst_bw_z0 = 0.0;
                 c.hyst_preisach = false;
+                c.hyst_remnant = false;
             }
             EffectKind::ThermalDrift => {
                 c.thermal = None;
@@ -262,6 +270,7 @@ impl Config {
                 c.hyst_bw_asym = from.hyst_bw_asym;
                 c.hyst_bw_z0 = from.hyst_bw_z0;
                 c.hyst_preisach = from.hyst_preisach;
+                c.hyst_remnant = from.hyst_remnant;
                 c.preis_mu = from.preis_mu;
                 c.preis_sigma = from.preis_sigma;
             }
@@ -291,6 +300,7 @@ impl Config {
                 self.hyst_share.is_some() == other.hyst_share.is_some()
                     && self.hyst_bouc_wen == other.hyst_bouc_wen
                     && self.hyst_preisach == other.hyst_preisach
+                    && self.hyst_remnant == other.hyst_remnant
             }
             EffectKind::ThermalDrift => {
                 let knots = |c: &Config| match &c.thermal {
@@ -327,4 +337,7 @@ impl Config {
 }
 
 /// Most Prony terms a creep model has.
+/// The remnant's ramps per node (see [`Config::hyst_remnant`]).
+pub const REMNANT_RAMPS: usize = 3;
+
 pub const MAX_CREEP_TERMS: usize = 3;

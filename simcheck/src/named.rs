@@ -68,6 +68,9 @@ pub fn effect_params(
                     if cfg.hyst_share.is_none() {
                         p.insert("additive".into(), 1.0);
                         p.insert("start_state".into(), cfg.hyst_bw_z0);
+                        if cfg.hyst_remnant {
+                            p.insert("remnant".into(), 1.0);
+                        }
                     }
                 } else {
                     p.insert("threshold_n".into(), r);
@@ -204,8 +207,14 @@ pub fn hysteresis_weight(ds: &Dataset, cfg: &Config, theta: &[Vec<f64>]) -> f64 
             let a = t[t.len() - 1];
             // The additive Bouc-Wen's two amplitudes (on z and on z F / F_max) at the mean
             // loaded force.
-            let h = if cfg.hyst_bouc_wen && t.len() >= 4 {
-                t[t.len() - 3] + t[t.len() - 2] * fbar / fmax.max(1e-9)
+            // The remnant's ramps sit between them and the law's gain.
+            let skip = if cfg.hyst_remnant {
+                crate::effects::REMNANT_RAMPS
+            } else {
+                0
+            };
+            let h = if cfg.hyst_bouc_wen && t.len() >= 4 + skip {
+                t[t.len() - 3 - skip] + t[t.len() - 2 - skip] * fbar / fmax.max(1e-9)
             } else {
                 t[t.len() - 2] * (1.0 + cfg.hyst_mix)
             };

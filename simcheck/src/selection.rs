@@ -294,9 +294,47 @@ impl Selection<'_> {
                 tried = Some(((cv, v, screened), params));
             }
         }
-        let (tested, params) = tried?;
+        let (mut tested, mut params) = tried?;
+        if tested.0.fits.first().is_some_and(|c| c.hyst_remnant) {
+            (tested, params) = self.remnant_earned(tested, params);
+        }
         self.last_fits.insert(e, (tested.0.fits.clone(), params));
         Some(tested)
+    }
+
+    /// A hysteresis won with a remnant keeps it only when the remnant earns its ramps against
+    /// the same loop without them (each fold refitted from its own fit, held out the same
+    /// way): the ramps follow the largest load so far, which on a recording whose presses grow
+    /// also follows a creep that accumulates, and that is creep's to explain.
+    fn remnant_earned(&self, with: Tested, params: Vec<Param>) -> (Tested, Vec<Param>) {
+        let ds = self.ctx.ds;
+        let plain: Vec<Config> = with
+            .0
+            .fits
+            .iter()
+            .map(|c| Config {
+                hyst_remnant: false,
+                ..c.clone()
+            })
+            .collect();
+        let [a, b] = [&plain[0], &plain[plain.len() - 1]];
+        let from = [std::slice::from_ref(a), std::slice::from_ref(b)];
+        let cv = cross_validate_from(self.ctx, from, &params, self.ev_n);
+        let ramps = ParamCount {
+            global: 0,
+            per_node: crate::effects::REMNANT_RAMPS,
+        };
+        // The ramps were charged with the form when it was accepted: here they must only
+        // lower the held-out SSE by the acceptance rule's share, consistently over blocks.
+        let nested = compare(self.ctx, &cv, &with.0, ramps, &self.noise);
+        let consistent = nested.block_t.max(nested.rank_z) >= crate::cv::MIN_BLOCK_T;
+        if nested.rel_gain >= crate::cv::MIN_REL_GAIN && consistent {
+            return (with, params);
+        }
+        let e = EffectKind::Hysteresis;
+        let mut v = compare(self.ctx, &self.cur_cv, &cv, n_params(a, e), &self.noise);
+        signature_check(ds, &self.noise, e, &self.cur_cv, &cv, &mut v);
+        ((cv, v, false), params)
     }
 
     /// A variant held out against the current model: first in the screening view (see

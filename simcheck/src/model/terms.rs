@@ -4,7 +4,7 @@
 use super::loads::Loads;
 use super::Layout;
 use crate::context::Context;
-use crate::effects::Config;
+use crate::effects::{Config, REMNANT_RAMPS};
 use crate::forms::{bouc_wen_gap, max_scan_skew, Knee};
 use crate::law::{Basis, Law};
 use crate::numeric::{centre_by_level, centre_by_level_smooth, play_gap};
@@ -23,8 +23,9 @@ pub(super) struct Terms {
     pub(super) trials: Vec<usize>,
     n: usize,
     hyst: Vec<f64>,
-    /// The additive Bouc-Wen's second regressor (`z F / F_max`); empty otherwise.
-    hyst2: Vec<f64>,
+    /// The additive hysteresis's further regressors, after `hyst`: the additive Bouc-Wen's
+    /// second (`z F / F_max`), then the remnant's ramps (see [`remnant_ramps`]).
+    hyst2: Vec<Vec<f64>>,
     curv_x: Vec<f64>,
 }
 
@@ -47,7 +48,10 @@ impl Terms {
         let loads = Loads::new(ctx, cfg, skew, need.as_deref(), step);
         let sens = sensitivity(ctx, cfg);
         let curv_x = curvature_regressor(ctx, cfg);
-        let (hyst, hyst2) = additive_hysteresis(ctx, cfg);
+        let (hyst, mut hyst2) = additive_hysteresis(ctx, cfg);
+        if cfg.hyst_remnant && !hyst.is_empty() {
+            hyst2.extend(remnant_ramps(&ctx.force_model));
+        }
         let basis = match cfg.law {
             Law::Power => None,
             Law::Spline(m) => Some(Basis::new(m, ds.max_force())),
@@ -55,7 +59,7 @@ impl Terms {
         let lay = Layout {
             n_int: 1,
             curv_k: cfg.curv_base,
-            hyst: usize::from(!hyst.is_empty()) + usize::from(!hyst2.is_empty()),
+            hyst: usize::from(!hyst.is_empty()) + hyst2.len(),
             law: cfg.law.per_node(),
         };
         Terms {
@@ -113,8 +117,8 @@ impl Terms {
         if self.lay.hyst > 0 {
             v[self.lay.hyst_index()] = sk * self.hyst[i];
         }
-        if self.lay.hyst > 1 {
-            v[self.lay.hyst_index() + 1] = sk * self.hyst2[i];
+        for (j, x) in self.hyst2.iter().enumerate() {
+            v[self.lay.hyst_index() + 1 + j] = sk * x[i];
         }
         let o = self.lay.law_start();
         let l = self.loads.at(k, i, j);
@@ -170,8 +174,8 @@ impl Terms {
         if self.lay.hyst > 0 {
             z += th[self.lay.hyst_index()] * sk * self.hyst[i];
         }
-        if self.lay.hyst > 1 {
-            z += th[self.lay.hyst_index() + 1] * sk * self.hyst2[i];
+        for (j, x) in self.hyst2.iter().enumerate() {
+            z += th[self.lay.hyst_index() + 1 + j] * sk * x[i];
         }
         match &self.basis {
             None => z + th[self.lay.law_start()] * (sk * l),
@@ -232,7 +236,7 @@ fn curvature_regressor(ctx: &Context, cfg: &Config) -> Vec<f64> {
 /// term, if any, is the second returned). Each term is centred on its mean at the same force
 /// level, so it only carries the difference between branches (a loop), never a
 /// level-dependent offset the static law should carry.
-fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<f64>) {
+fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<Vec<f64>>) {
     match cfg.hysteresis.map(|r| r.min(ctx.hyst_r_max)) {
         Some(r) if cfg.hyst_share.is_none() && cfg.hyst_bouc_wen => {
             let (z, zu) = bouc_wen_gap(
@@ -247,7 +251,7 @@ fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<f64>) {
             // its steps would be left for the smooth law to miss.
             (
                 centre_by_level_smooth(&ctx.force_model, z),
-                centre_by_level_smooth(&ctx.force_model, zu),
+                vec![centre_by_level_smooth(&ctx.force_model, zu)],
             )
         }
         Some(r) if cfg.hyst_share.is_none() => {
@@ -261,5 +265,44 @@ fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<f64>) {
             (centre_by_level(&ctx.force_model, mixed), Vec::new())
         }
         _ => (Vec::new(), Vec::new()),
+    }
+}
+
+/// The remnant's regressors (see [`Config::hyst_remnant`]): the largest force so far, `M`, as
+/// piecewise-linear ramps over thirds of the peak force (`clamp(3 M / F_max - j, 0, 1)`, `j`
+/// = 0, 1, 2), so each node's remnant is its own function of `M`, 0 before any load.
+pub(super) fn remnant_ramps(force: &[f64]) -> Vec<Vec<f64>> {
+    let fmax = force.iter().copied().fold(0.0, f64::max).max(1e-12);
+    let mut m = 0.0f64;
+    let most: Vec<f64> = force
+        .iter()
+        .map(|&f| {
+            m = m.max(f);
+            3.0 * m / fmax
+        })
+        .collect();
+    (0..REMNANT_RAMPS)
+        .map(|j| {
+            most.iter()
+                .map(|&x| (x - j as f64).clamp(0.0, 1.0))
+                .collect()
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_remnant_ramps_follow_the_largest_force_so_far() {
+        // A press to 6 N, rest, the peak press to 12 N, a smaller one to 3 N.
+        let f = [0.0, 6.0, 0.0, 12.0, 0.0, 3.0, 0.0];
+        let r = remnant_ramps(&f);
+        assert_eq!(r.len(), REMNANT_RAMPS);
+        // Thirds of the 12 N peak: 6 N fills the first ramp and half the second, for good.
+        assert_eq!(r[0], [0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]);
+        assert_eq!(r[1], [0.0, 0.5, 0.5, 1.0, 1.0, 1.0, 1.0]);
+        assert_eq!(r[2], [0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0]);
     }
 }
