@@ -310,6 +310,10 @@ fn with_wander(noise: &NoiseModel, n: usize, mut pred: Vec<f64>) -> Vec<f64> {
 /// The smoothness settings of the spline law tried in round 0: basis functions per node.
 pub const SPLINE_SIZES: [usize; 3] = [4, 6, 9];
 
+/// The basis functions of the monotone shape shared by every node, tried in round 0 when no
+/// spline per node joined.
+pub const SHAPE_SIZES: [usize; 2] = [4, 6];
+
 /// Least share of the held-out SSE the spline law must remove to replace the start model's.
 pub const MIN_LAW_GAIN: f64 = 0.05;
 

@@ -58,6 +58,12 @@ pub struct Config {
     /// The static law: the power law `a_k L^n` with this exponent, or a monotone spline per
     /// node (see [`crate::law`]; the exponent is then not used).
     pub law: Law,
+    /// With the power law: instead of `L^n`, one monotone shape every node shares, `S(L) =
+    /// sum_j exp(w_j) Phi_j(L)` on the spline's basis (see [`crate::law`]), `w_0 = 0` (each
+    /// node's gain carries the scale); these are the `w_j`. A static law of any smooth
+    /// increasing form for `m - 1` global parameters, where the spline per node pays `m - 1`
+    /// per node.
+    pub law_shape: Option<Vec<f64>>,
     pub exponent: f64,
     /// Resistance floor (ohm); used when `sat_in_base` or the saturation effect is on.
     pub r_floor_ohm: f64,
@@ -154,6 +160,7 @@ impl Config {
     pub fn base(exponent: f64, r_floor_ohm: f64) -> Config {
         Config {
             law: Law::Power,
+            law_shape: None,
             exponent,
             r_floor_ohm,
             sat_in_base: r_floor_ohm > 0.0,

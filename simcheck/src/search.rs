@@ -10,6 +10,7 @@ use crate::model::{evaluate, evaluate_with};
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Param {
     LnExponent,
+    LawShape(usize),
     LnFloor,
     CreepC(usize),
     CreepLnTau(usize),
@@ -35,6 +36,11 @@ impl Param {
     pub fn get(self, c: &Config) -> f64 {
         match self {
             Param::LnExponent => c.exponent.ln(),
+            Param::LawShape(j) => c
+                .law_shape
+                .as_ref()
+                .and_then(|w| w.get(j))
+                .map_or(0.0, |w| *w),
             Param::LnFloor => c.r_floor_ohm.max(1e-9).ln(),
             Param::CreepC(j) => c.creep.as_ref().and_then(|v| v.get(j)).map_or(0.0, |t| t.0),
             Param::CreepLnTau(j) => c
@@ -70,6 +76,11 @@ impl Param {
     pub fn set(self, c: &mut Config, v: f64) {
         match self {
             Param::LnExponent => c.exponent = v.clamp(0.2f64.ln(), 3f64.ln()).exp().clamp(0.2, 3.0),
+            Param::LawShape(j) => {
+                if let Some(w) = c.law_shape.as_mut().and_then(|w| w.get_mut(j)) {
+                    *w = v.clamp(-8.0, 8.0);
+                }
+            }
             Param::LnFloor => c.r_floor_ohm = v.clamp(-30.0, 30.0).exp(),
             Param::CreepC(j) => {
                 if let Some(t) = c.creep.as_mut().and_then(|cr| cr.get_mut(j)) {
@@ -274,7 +285,10 @@ pub fn fit(
 /// coefficients are solved per node).
 pub fn law_params(cfg: &Config) -> Vec<Param> {
     match cfg.law {
-        Law::Power => vec![Param::LnExponent],
+        Law::Power => match &cfg.law_shape {
+            Some(w) => (1..w.len()).map(Param::LawShape).collect(),
+            None => vec![Param::LnExponent],
+        },
         Law::Spline(_) => Vec::new(),
     }
 }

@@ -10,7 +10,9 @@ use crate::candidates::{applicable, candidates, n_params, ParamCount};
 use crate::checks::signature_check;
 use crate::context::Context;
 use crate::cv::{compare, cross_validate, cross_validate_from, Cv, Verdict};
-use crate::diagnose::{law_of, law_params_added, Progress, Trial, MIN_LAW_GAIN, SPLINE_SIZES};
+use crate::diagnose::{
+    law_of, law_params_added, Progress, Trial, MIN_LAW_GAIN, SHAPE_SIZES, SPLINE_SIZES,
+};
 use crate::effects::{Config, EffectKind};
 use crate::law::Law;
 use crate::noise::NoiseModel;
@@ -112,9 +114,55 @@ impl Selection<'_> {
                 self.fixed.insert(e, (before, v));
             }
         }
-        if self.spline(0, &SPLINE_SIZES) {
+        if self.spline(0, &SPLINE_SIZES) || self.shared_law() {
             self.retest_static();
         }
+    }
+
+    /// When no spline per node earned its parameters: one monotone shape shared by every node
+    /// (`Config::law_shape`) in place of the power law's `L^n`, with each of `SHAPE_SIZES`
+    /// basis functions, held out and charged its extra global parameters; it must remove
+    /// [`MIN_LAW_GAIN`] of the held-out SSE too. True when it joined.
+    fn shared_law(&mut self) -> bool {
+        let tc = Instant::now();
+        let ds = self.ctx.ds;
+        let mut best: Option<(Cv, Verdict, usize)> = None;
+        for m in SHAPE_SIZES {
+            let cfg = Config {
+                law_shape: Some(vec![0.0; m]),
+                ..self.cur.clone()
+            };
+            let cv = cross_validate(
+                self.ctx,
+                std::slice::from_ref(&cfg),
+                &refit_params(&cfg, ds.kappa.is_some()),
+                self.ev_n,
+            );
+            // `m - 1` shape weights searched, the exponent no longer.
+            let k = crate::candidates::ParamCount {
+                global: m - 2,
+                per_node: 0,
+            };
+            let mut v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
+            v.accepted &= v.rel_gain >= MIN_LAW_GAIN;
+            if best.as_ref().is_none_or(|b| v.ic_gain > b.1.ic_gain) {
+                best = Some((cv, v, m));
+            }
+        }
+        let Some((cv, v, m)) = best else {
+            return false;
+        };
+        self.trials.push(Trial {
+            round: 0,
+            effect: format!("static_law (monotone shape shared by the nodes, {m} knots)"),
+            verdict: v,
+            seconds: tc.elapsed().as_secs_f64(),
+            screened: false,
+        });
+        if v.accepted {
+            self.join(&cv.fits);
+        }
+        v.accepted
     }
 
     /// The spline law with each of `sizes` basis functions per node against the current law;
@@ -126,6 +174,7 @@ impl Selection<'_> {
         for &m in sizes {
             let cfg = Config {
                 law: Law::Spline(m),
+                law_shape: None,
                 ..self.cur.clone()
             };
             let cv = cross_validate(

@@ -20,7 +20,7 @@ pub fn power_summary(
     ev_n: usize,
 ) -> (Config, Vec<Vec<f64>>) {
     let asymmetric = cur.hyst_bouc_wen && cur.hyst_share.is_some() && cur.hyst_bw_asym != 0.0;
-    if cur.law == Law::Power && !asymmetric {
+    if cur.law == Law::Power && cur.law_shape.is_none() && !asymmetric {
         return (cur.clone(), ev.theta.clone());
     }
     // Only the load-path loop is written to SIM.toml as a Bouc-Wen, so only its asymmetry goes.
@@ -28,6 +28,7 @@ pub fn power_summary(
     // which needs the asymmetry the tool fitted (zeroing it had left a loop of weight 0).
     let power = Config {
         law: Law::Power,
+        law_shape: None,
         hyst_bw_asym: if asymmetric { 0.0 } else { cur.hyst_bw_asym },
         ..cur.clone()
     };

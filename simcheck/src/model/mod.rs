@@ -414,4 +414,44 @@ mod tests {
             / (2 * len) as f64;
         assert!(fit < 0.01, "rms {}", fit.sqrt());
     }
+
+    #[test]
+    fn a_shape_every_node_shares_fits_a_saturating_law_the_power_law_cannot() {
+        // Two nodes, the same soft saturation `1 - exp(-F / 3)` at different gains.
+        let mut ds = crate::testdata::presses();
+        let len = ds.len();
+        ds.n = 2;
+        ds.cols = 2;
+        ds.map = crate::data::ReadoutMap::from_readout(&taxel_sim::SensorModel::default().readout);
+        ds.y = (0..len * 2)
+            .map(|idx| {
+                let (i, k) = (idx / 2, idx % 2);
+                let s = 1.0 - (-ds.force[i] / 3.0).exp();
+                ds.map.from_g(20e-6 + 200e-6 * (1.0 + k as f64) * s)
+            })
+            .collect();
+        let ctx = Context::new(&ds);
+        let all = |_: usize| true;
+        let power = crate::search::fit_all(
+            &ctx,
+            &[Config::base(1.0, 0.0)],
+            &[crate::search::Param::LnExponent],
+            400,
+        );
+        let shape = Config {
+            law_shape: Some(vec![0.0; 6]),
+            ..Config::base(1.0, 0.0)
+        };
+        let params = crate::search::law_params(&shape);
+        assert_eq!(params.len(), 5);
+        let shape = crate::search::fit_all(&ctx, &[shape], &params, 1500);
+        let (sse_power, sse_shape) = (
+            evaluate_with(&ctx, &power, &all, 1, false).train_sse,
+            evaluate_with(&ctx, &shape, &all, 1, false).train_sse,
+        );
+        assert!(
+            sse_shape < 0.05 * sse_power,
+            "shape {sse_shape} power {sse_power}"
+        );
+    }
 }

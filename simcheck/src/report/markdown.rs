@@ -80,7 +80,13 @@ fn findings(s: &mut String, ds: &Dataset, d: &Diagnosis, notes: &[String], resim
         );
     }
     let law = |c: &crate::effects::Config| match c.law {
-        crate::law::Law::Power => format!("power law, exponent {:.3}", c.exponent),
+        crate::law::Law::Power => match &c.law_shape {
+            Some(w) => format!(
+                "monotone shape shared by the nodes, {} basis functions",
+                w.len()
+            ),
+            None => format!("power law, exponent {:.3}", c.exponent),
+        },
         crate::law::Law::Spline(m) => format!("monotone spline, {m} basis functions per node"),
     };
     let floor = |c: &crate::effects::Config| {

@@ -131,16 +131,23 @@ fn report_json(
     })
 }
 
-/// A model's static law: `exponent` and `r_floor_ohm` as before, and `law` (`power`, or
-/// `monotone_spline` with `spline_basis_per_node`); with a spline the exponent is the start
-/// model's and unused (`sim_law` has the power law written to SIM.toml).
+/// A model's static law: `exponent` and `r_floor_ohm` as before, and `law` (`power`,
+/// `monotone_spline` with `spline_basis_per_node`, or `monotone_shared_shape` with
+/// `shape_weights_ln`, the shape's `w_j`); with either the exponent is the start model's and
+/// unused (`sim_law` has the power law written to SIM.toml).
 fn base_json(c: &Config) -> serde_json::Value {
     let mut j = json!({
         "exponent": c.exponent,
         "r_floor_ohm": if c.sat_in_base || c.saturation { c.r_floor_ohm } else { 0.0 },
     });
     match c.law {
-        Law::Power => j["law"] = json!("power"),
+        Law::Power => match &c.law_shape {
+            Some(w) => {
+                j["law"] = json!("monotone_shared_shape");
+                j["shape_weights_ln"] = json!(w);
+            }
+            None => j["law"] = json!("power"),
+        },
         Law::Spline(m) => {
             j["law"] = json!("monotone_spline");
             j["spline_basis_per_node"] = json!(m);
