@@ -2,7 +2,7 @@
 //! absent): concealed-effect recordings that taxel did not write (a 12-bit divider, per-node
 //! static laws, a wander and spikes), diagnosed as a new user would, with no flag at all. World
 //! B checks the tool, it is not a development set: its full score is in
-//! docs/simcheck-results.md. These three cases are the cheap ones (about 40 s together).
+//! docs/simcheck-results.md. These four cases are the cheap ones (under a minute together).
 
 use std::path::PathBuf;
 
@@ -59,4 +59,16 @@ fn world_b_creep_is_named() {
     assert_eq!(d.verdict, "explained");
     assert_eq!(named(&d), ["creep"]);
     assert!(d.rmse_final < 0.6 * d.rmse_base);
+}
+
+/// A loop whose first presses leave each node's rest level raised for good: named as
+/// hysteresis (the form with a remnant), nothing left unexplained.
+#[test]
+fn world_b_hysteresis_with_a_remnant_is_explained() {
+    let Some(d) = run("mm_hysteresis.csv.gz") else {
+        return;
+    };
+    assert_eq!(d.verdict, "explained", "{:?}", d.unexplained);
+    assert_eq!(named(&d), ["hysteresis"]);
+    assert!(d.rmse_final < 0.35 * d.rmse_base);
 }
