@@ -154,7 +154,7 @@ impl Selection<'_> {
         };
         self.trials.push(Trial {
             round: 0,
-            effect: format!("static_law (monotone shape shared by the nodes, {m} knots)"),
+            effect: format!("static_law (monotone shape shared by the nodes, {m} basis functions)"),
             verdict: v,
             seconds: tc.elapsed().as_secs_f64(),
             screened: false,
