@@ -121,90 +121,79 @@ impl Selection<'_> {
 
     /// When no spline per node earned its parameters: one monotone shape shared by every node
     /// (`Config::law_shape`) in place of the power law's `L^n`, with each of `SHAPE_SIZES`
-    /// basis functions, held out and charged its extra global parameters; it must remove
-    /// [`MIN_LAW_GAIN`] of the held-out SSE too. True when it joined.
+    /// basis functions, held out and charged its extra global parameters (`m - 1` shape
+    /// weights searched, the exponent no longer). True when it joined.
     fn shared_law(&mut self) -> bool {
         let tc = Instant::now();
-        let ds = self.ctx.ds;
-        let mut best: Option<(Cv, Verdict, usize)> = None;
-        for m in SHAPE_SIZES {
-            let cfg = Config {
-                law_shape: Some(vec![0.0; m]),
-                ..self.cur.clone()
-            };
-            let cv = cross_validate(
-                self.ctx,
-                std::slice::from_ref(&cfg),
-                &refit_params(&cfg, ds.kappa.is_some()),
-                self.ev_n,
-            );
-            // `m - 1` shape weights searched, the exponent no longer.
-            let k = crate::candidates::ParamCount {
-                global: m - 2,
-                per_node: 0,
-            };
-            let mut v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
-            v.accepted &= v.rel_gain >= MIN_LAW_GAIN;
-            if best.as_ref().is_none_or(|b| v.ic_gain > b.1.ic_gain) {
-                best = Some((cv, v, m));
-            }
-        }
-        let Some((cv, v, m)) = best else {
+        let laws = SHAPE_SIZES
+            .iter()
+            .map(|&m| {
+                let cfg = Config {
+                    law_shape: Some(vec![0.0; m]),
+                    ..self.cur.clone()
+                };
+                let k = ParamCount {
+                    global: m - 2,
+                    per_node: 0,
+                };
+                (cfg, k)
+            })
+            .collect();
+        let Some((cv, v)) = self.best_law(laws) else {
             return false;
         };
-        self.trials.push(Trial {
-            round: 0,
-            effect: format!("static_law (monotone shape shared by the nodes, {m} basis functions)"),
-            verdict: v,
-            seconds: tc.elapsed().as_secs_f64(),
-            screened: false,
-        });
-        if v.accepted {
-            self.join(&cv.fits);
-        }
-        v.accepted
+        let m = cv.fits[0].law_shape.as_ref().map_or(0, Vec::len);
+        let effect =
+            format!("static_law (monotone shape shared by the nodes, {m} basis functions)");
+        self.law_joins(0, effect, cv, v, tc)
     }
 
     /// The spline law with each of `sizes` basis functions per node against the current law;
     /// true when the best of them joined (tested in `round`). Remembers the best size.
     fn spline(&mut self, round: usize, sizes: &[usize]) -> bool {
         let tc = Instant::now();
-        let ds = self.ctx.ds;
+        let laws = sizes
+            .iter()
+            .map(|&m| {
+                let cfg = Config {
+                    law: Law::Spline(m),
+                    law_shape: None,
+                    ..self.cur.clone()
+                };
+                (cfg, law_params_added(m))
+            })
+            .collect();
+        let Some((cv, v)) = self.best_law(laws) else {
+            return false;
+        };
+        self.spline_m = law_of(&cv.fits[0]);
+        let effect = format!("static_law (monotone spline, {} per node)", self.spline_m);
+        self.law_joins(round, effect, cv, v, tc)
+    }
+
+    /// Static laws, each with the parameters it adds, held out against the current model: the
+    /// one the criterion likes best, accepted only if it also removes [`MIN_LAW_GAIN`] of the
+    /// held-out SSE (a law with several parameters must earn them).
+    fn best_law(&self, laws: Vec<(Config, ParamCount)>) -> Option<(Cv, Verdict)> {
+        let has_kappa = self.ctx.ds.kappa.is_some();
         let mut best: Option<(Cv, Verdict)> = None;
-        for &m in sizes {
-            let cfg = Config {
-                law: Law::Spline(m),
-                law_shape: None,
-                ..self.cur.clone()
-            };
-            let cv = cross_validate(
-                self.ctx,
-                std::slice::from_ref(&cfg),
-                &refit_params(&cfg, ds.kappa.is_some()),
-                self.ev_n,
-            );
-            let mut v = compare(
-                self.ctx,
-                &self.cur_cv,
-                &cv,
-                law_params_added(m),
-                &self.noise,
-            );
+        for (cfg, k) in laws {
+            let params = refit_params(&cfg, has_kappa);
+            let cv = cross_validate(self.ctx, std::slice::from_ref(&cfg), &params, self.ev_n);
+            let mut v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
             v.accepted &= v.rel_gain >= MIN_LAW_GAIN;
             if best.as_ref().is_none_or(|b| v.ic_gain > b.1.ic_gain) {
                 best = Some((cv, v));
             }
         }
-        let Some((cv, v)) = best else {
-            return false;
-        };
-        self.spline_m = law_of(&cv.fits[0]);
+        best
+    }
+
+    /// Records a static law's trial and, when it was accepted, joins it; true then.
+    fn law_joins(&mut self, round: usize, effect: String, cv: Cv, v: Verdict, tc: Instant) -> bool {
         self.trials.push(Trial {
             round,
-            effect: format!(
-                "static_law (monotone spline, {} per node)",
-                law_of(&cv.fits[0])
-            ),
+            effect,
             verdict: v,
             seconds: tc.elapsed().as_secs_f64(),
             screened: false,

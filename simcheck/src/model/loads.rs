@@ -161,10 +161,6 @@ impl Loads {
         // The power law, p = L^n (a spline reads the load itself).
         // Or the shape every node shares.
         if cfg.law == Law::Power {
-            let l_max = loads
-                .iter()
-                .map(|p| p.iter().fold(0.0f64, |a, &b| a.max(b)))
-                .fold(0.0f64, f64::max);
             if let Some(w) = &cfg.law_shape {
                 let basis = crate::law::Basis::new(w.len(), ds.max_force());
                 let c: Vec<f64> = w.iter().map(|x| x.exp()).collect();
@@ -172,6 +168,10 @@ impl Loads {
                     p.iter_mut().for_each(|v| *v = basis.value(&c, *v));
                 }
             } else {
+                let l_max = loads
+                    .iter()
+                    .map(|p| p.iter().fold(0.0f64, |a, &b| a.max(b)))
+                    .fold(0.0f64, f64::max);
                 let law = PowTable::new(l_max, cfg.exponent);
                 for p in loads.iter_mut() {
                     p.iter_mut().for_each(|v| *v = law.at(*v));
