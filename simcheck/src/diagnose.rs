@@ -217,8 +217,12 @@ pub fn diagnose_with(
         cur.preis_sigma = sigma;
     }
     let final_eval = evaluate(&ctx, &cur, &|_| true);
+    let s1 = crate::timing::span("  locate");
     let final_findings = locate(&ctx, &cur_cv.resid, &final_eval.pred);
-    let (sim_cfg, sim_theta) = crate::simlaw::power_summary(&ctx, &cur, &final_eval, ev_n);
+    drop(s1);
+    let s1 = crate::timing::span("  power summary");
+    let (sim_cfg, sim_theta) = crate::simlaw::power_summary(&ctx, &screen, &cur, &final_eval, ev_n);
+    drop(s1);
     let responsiveness = crate::locate::responsiveness(&ctx, &final_eval.pred);
     let effects: Vec<NamedEffect> = cur
         .effects()

@@ -102,16 +102,12 @@ impl Basis {
     pub fn local(&self, l: f64) -> (usize, f64, f64) {
         let x = (l * self.inv_scale).max(0.0);
         let m = self.knots.len();
-        // Knots at (j / (m - 1))^2: the segment is floor(sqrt(x) (m - 1)).
-        let s = ((x.sqrt() * (m - 1) as f64) as usize).min(m - 1);
-        // Guard the float rounding of the square root at a knot.
-        let s = if s > 0 && x < self.knots[s] {
-            s - 1
-        } else if s + 1 < m && x >= self.knots[s + 1] {
-            s + 1
-        } else {
-            s
-        };
+        // The segment: how many knots after the first lie at or below `x` (a count without
+        // branches; the knots are few).
+        let s = self.knots[1..]
+            .iter()
+            .map(|&k| usize::from(x >= k))
+            .sum::<usize>();
         let u = x - self.knots[s];
         if s + 1 == m {
             return (s, self.left[s] + u, 0.0);
@@ -239,6 +235,22 @@ mod tests {
             (row[4] - (0.5 * (1.0 - 0.5625) + 0.2)).abs() < 1e-12,
             "{row:?}"
         );
+    }
+
+    #[test]
+    fn a_load_falls_in_the_segment_whose_knots_bracket_it() {
+        for m in [4, 6, 9] {
+            let b = Basis::new(m, 20.0);
+            for (j, &k) in b.knots.iter().enumerate() {
+                let l = k * 20.0;
+                assert_eq!(b.local(l).0, j, "m {m}: at knot {j}");
+                if j > 0 {
+                    assert_eq!(b.local(l * (1.0 - 1e-9)).0, j - 1, "m {m}: below knot {j}");
+                }
+            }
+            assert_eq!(b.local(-3.0).0, 0);
+            assert_eq!(b.local(50.0).0, m - 1);
+        }
     }
 
     #[test]

@@ -394,8 +394,9 @@ impl Selection<'_> {
     }
 
     /// Effect `e`'s variants worth holding out: all of them when there are two or fewer; else
-    /// the two (three of hysteresis's five or more forms) whose best starting
-    /// point on the whole recording scores best,
+    /// the two (three of hysteresis's five or more forms) whose best starting point scores
+    /// best on the whole recording in the screening view (see [`crate::screen`]; a quarter of
+    /// the cost, and only a ranking),
     /// `T ln(SSE) + 2 k ln(T)` with `T` the time samples over ten (a crude charge for the extra
     /// terms). The held-out test then decides between them and the criterion
     /// charges the one it keeps; a form that a quick fit ranks third or worse rarely wins.
@@ -404,6 +405,7 @@ impl Selection<'_> {
         if all.len() <= 2 {
             return all;
         }
+        let _sp = crate::timing::span(format!("    finalists {}", e.name()));
         let t = (self.ctx.ds.len() as f64 / 10.0).max(10.0);
         let n = self.ctx.ds.n;
         let mut scored: Vec<(f64, Variant)> = all
@@ -415,7 +417,7 @@ impl Selection<'_> {
                 let k = n_params(first, e);
                 let sse = starts
                     .iter()
-                    .map(|c| train_sse(self.ctx, c, &|_| true))
+                    .map(|c| train_sse(self.screen, c, &|_| true))
                     .fold(f64::INFINITY, f64::min)
                     .max(1e-300);
                 let score = t * sse.ln() + 2.0 * (k.global + k.per_node * n) as f64 * t.ln();

@@ -12,9 +12,11 @@ use crate::search::{base_params, fit_all, Param};
 /// the model has one) fitted on the whole recording (the effects' parameters kept), and its
 /// per-node parameters.
 /// An asymmetric Bouc-Wen loop is refitted symmetric (its saturation, exponent and share), the
-/// only Bouc-Wen taxel-sim runs; report.json keeps the asymmetry the tool fitted.
+/// only Bouc-Wen taxel-sim runs, first in the screening view `screen`; report.json keeps the
+/// asymmetry the tool fitted.
 pub fn power_summary(
     ctx: &Context,
+    screen: &Context,
     cur: &Config,
     ev: &crate::model::Eval,
     ev_n: usize,
@@ -37,8 +39,15 @@ pub fn power_summary(
         // taxel-sim's Bouc-Wen is symmetric: its saturation, exponent and share refitted so.
         params.extend([Param::HystLnR, Param::HystLnN, Param::HystShare]);
     }
-    let evals = if asymmetric { 3 * ev_n } else { ev_n };
-    let fitted = fit_all(ctx, std::slice::from_ref(&power), &params, evals);
+    // The symmetric loop lies further from the fitted one: its search starts in the screening
+    // view (see [`crate::screen`], a quarter of the cost per evaluation) and ends on the whole
+    // recording.
+    let start = if asymmetric {
+        fit_all(screen, std::slice::from_ref(&power), &params, 2 * ev_n)
+    } else {
+        power
+    };
+    let fitted = fit_all(ctx, std::slice::from_ref(&start), &params, ev_n);
     let theta = evaluate(ctx, &fitted, &|_| true).theta;
     (fitted, theta)
 }
