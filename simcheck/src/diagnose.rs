@@ -252,6 +252,7 @@ pub fn diagnose_with(
         &ctx,
         &base_cv,
         &cur_cv,
+        &final_eval.pred,
         &final_findings,
         &noise,
         opts.unexplained_ratio,

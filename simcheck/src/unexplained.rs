@@ -22,19 +22,24 @@ pub struct Unexplained {
 /// from the tool's is not "unexplained"). Each node's noise is the noise model's whole noise
 /// at rest (white, fast and slow parts; [`NoiseModel::floor`]) or the white floor from its
 /// sample-to-sample differences, whichever is larger: a wander is noise, not structure (and the
-/// wander every node shares was taken out of the readings, see [`crate::wander`]).
+/// wander every node shares was taken out of the readings, see [`crate::wander`]). To it adds
+/// what the load cell's noise leaves through each node's slope ([`force_noise_var`]; `pred`:
+/// the final model's prediction of every sample).
 pub fn find_unexplained(
     ctx: &Context,
     base_cv: &Cv,
     cv: &Cv,
+    pred: &[f64],
     f: &Findings,
     noise: &NoiseModel,
     limit: f64,
 ) -> Vec<Unexplained> {
     let ds = ctx.ds;
+    let from_force = force_noise_var(ctx, pred);
     let with_model = |mut v: Vec<crate::locate::NodeStat>| {
         for s in v.iter_mut() {
-            s.noise = s.noise.max(noise.floor(s.node));
+            let floor = s.noise.max(noise.floor(s.node));
+            s.noise = (floor * floor + from_force[s.node]).sqrt();
             s.ratio = if s.noise > 0.0 { s.rms / s.noise } else { 0.0 };
         }
         v
@@ -115,4 +120,104 @@ pub fn find_unexplained(
         });
     }
     out
+}
+
+/// Force bins of [`force_noise_var`], spaced in the square root of the force (fine near zero,
+/// where a law that rises steeply from zero load is steepest).
+const FORCE_BINS: usize = 40;
+
+/// The variance each node's held-out residual takes from the load cell's noise: the recorded
+/// force drives the model, so its noise (standard deviation `Context::force_deadband / 3`)
+/// reaches the prediction through the node's slope, `(dy/dF)^2 sd_F^2`. It is large where a
+/// law rises steeply from zero load (a logarithmic law read through a divider: thousands of
+/// counts per newton in the first tenth of a newton), and a node that carries much of the load
+/// is then not "unexplained" for it. The slope is the prediction's: its mean over each force
+/// bin, differenced between the neighbouring bins, at each usable sample's force; samples the
+/// model sees at zero force (within the load cell's noise of it) take nothing.
+pub fn force_noise_var(ctx: &Context, pred: &[f64]) -> Vec<f64> {
+    let ds = ctx.ds;
+    let (len, n) = (ds.len(), ds.n);
+    let sd_f = ctx.force_deadband / 3.0;
+    let fmax = ds.max_force();
+    if sd_f <= 0.0 || fmax <= 0.0 || pred.len() != len * n {
+        return vec![0.0; n];
+    }
+    let force = &ctx.force_model;
+    let bin = |f: f64| ((f.max(0.0) / fmax).sqrt() * FORCE_BINS as f64) as usize;
+    let bin = |f: f64| bin(f).min(FORCE_BINS - 1);
+    (0..n)
+        .map(|k| {
+            let (mut sf, mut sy, mut cnt) =
+                ([0.0; FORCE_BINS], [0.0; FORCE_BINS], [0usize; FORCE_BINS]);
+            for i in (0..len).filter(|&i| force[i] > 0.0 && ctx.usable[i * n + k]) {
+                let b = bin(force[i]);
+                sf[b] += force[i];
+                sy[b] += pred[i * n + k];
+                cnt[b] += 1;
+            }
+            // Bins with a few samples at least, as (mean force, mean prediction).
+            let pts: Vec<(usize, f64, f64)> = (0..FORCE_BINS)
+                .filter(|&b| cnt[b] >= 5)
+                .map(|b| (b, sf[b] / cnt[b] as f64, sy[b] / cnt[b] as f64))
+                .collect();
+            if pts.len() < 2 {
+                return 0.0;
+            }
+            let mut slope = [0.0f64; FORCE_BINS];
+            for (j, &(b, _, _)) in pts.iter().enumerate() {
+                let (lo, hi) = (pts[j.saturating_sub(1)], pts[(j + 1).min(pts.len() - 1)]);
+                if hi.1 > lo.1 {
+                    slope[b] = (hi.2 - lo.2) / (hi.1 - lo.1);
+                }
+            }
+            let sum: f64 = (0..len)
+                .filter(|&i| force[i] > 0.0 && ctx.usable[i * n + k])
+                .map(|i| slope[bin(force[i])].powi(2))
+                .sum();
+            let used = (0..len).filter(|&i| ctx.usable[i * n + k]).count();
+            sd_f * sd_f * sum / used.max(1) as f64
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_load_cells_noise_reaches_a_node_through_its_slope() {
+        // Two nodes under the same presses with a noisy load cell: node 0's prediction rises
+        // 100 units per newton, node 1's is flat.
+        let mut ds = crate::testdata::presses();
+        let len = ds.len();
+        ds.n = 2;
+        ds.cols = 2;
+        ds.y = vec![1000.0; len * 2];
+        let mut state = 12345u64;
+        for f in ds.force.iter_mut() {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+            *f += 0.02 * (u - 0.5);
+        }
+        let ctx = Context::new(&ds);
+        let pred: Vec<f64> = (0..len * 2)
+            .map(|idx| {
+                let (i, k) = (idx / 2, idx % 2);
+                if k == 0 {
+                    100.0 * ctx.force_model[i]
+                } else {
+                    5.0
+                }
+            })
+            .collect();
+        let v = force_noise_var(&ctx, &pred);
+        let sd_f = ctx.force_deadband / 3.0;
+        let loaded = ctx.force_model.iter().filter(|&&f| f > 0.0).count() as f64 / len as f64;
+        let want = (100.0 * sd_f).powi(2) * loaded;
+        assert!(sd_f > 0.0);
+        assert!((v[0] / want - 1.0).abs() < 0.1, "{} vs {want}", v[0]);
+        assert!(v[1].abs() < 1e-12, "{}", v[1]);
+    }
 }
