@@ -134,7 +134,7 @@ const FORCE_BINS: usize = 40;
 /// is then not "unexplained" for it. The slope is the prediction's: its mean over each force
 /// bin, differenced between the neighbouring bins, at each usable sample's force; samples the
 /// model sees at zero force (within the load cell's noise of it) take nothing.
-pub fn force_noise_var(ctx: &Context, pred: &[f64]) -> Vec<f64> {
+pub(crate) fn force_noise_var(ctx: &Context, pred: &[f64]) -> Vec<f64> {
     let ds = ctx.ds;
     let (len, n) = (ds.len(), ds.n);
     let sd_f = ctx.force_deadband / 3.0;
