@@ -216,6 +216,17 @@ impl<'a> Context<'a> {
         self.ds.len().div_ceil(FIT_SAMPLES).max(1)
     }
 
+    /// The hysteresis width that acts for a fitted `r` (N: a play's half-width, a Bouc-Wen
+    /// state's saturation): at most [`Context::hyst_r_max`], and at least the load cell's noise
+    /// (`force_deadband`, three of its standard deviations): a loop narrower than the noise of
+    /// the force it is read against cannot be told from that noise, and on a law that rises
+    /// steeply from zero load it fits the noise and lag near zero as a "loop" (zoo-log 231's
+    /// null case: plays 0.018 N wide).
+    pub fn hyst_r(&self, r: f64) -> f64 {
+        r.min(self.hyst_r_max)
+            .max(self.force_deadband.min(self.hyst_r_max))
+    }
+
     /// On which grid the parameter search runs the effects' states (creep, hysteresis): every
     /// sample, or every second or later one when a recording is longer than
     /// [`STATE_SAMPLES`] (a 10-minute recording at 100 Hz: every fourth sample, 25 Hz). The

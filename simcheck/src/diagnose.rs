@@ -209,7 +209,7 @@ pub fn diagnose_with(
             .iter_mut()
             .for_each(|t| t.1 = t.1.min(ctx.creep_tau_max).max(ctx.creep_tau_min));
     }
-    cur.hysteresis = cur.hysteresis.map(|r| r.min(ctx.hyst_r_max));
+    cur.hysteresis = cur.hysteresis.map(|r| ctx.hyst_r(r));
     if cur.hyst_preisach {
         let (h0, mu, sigma) = crate::model::preisach_acting(&ctx, &cur);
         cur.hysteresis = Some(h0);

@@ -89,9 +89,8 @@ impl Loads {
             let (h0, mu, sigma) = preisach_acting(ctx, cfg);
             Preisach::new(ds.max_force(), h0, mu, sigma)
         });
-        let r_max = ctx.hyst_r_max;
         let mut index = Vec::new();
-        let mut loads: Vec<Vec<f64>> = match (cfg.hysteresis.map(|r| r.min(r_max)), cfg.hyst_share)
+        let mut loads: Vec<Vec<f64>> = match (cfg.hysteresis.map(|r| ctx.hyst_r(r)), cfg.hyst_share)
         {
             (Some(r), Some(share)) => {
                 // Nodes with the same load scale have the same load: one series each scale.

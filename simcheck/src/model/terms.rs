@@ -237,7 +237,7 @@ fn curvature_regressor(ctx: &Context, cfg: &Config) -> Vec<f64> {
 /// level, so it only carries the difference between branches (a loop), never a
 /// level-dependent offset the static law should carry.
 fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<Vec<f64>>) {
-    match cfg.hysteresis.map(|r| r.min(ctx.hyst_r_max)) {
+    match cfg.hysteresis.map(|r| ctx.hyst_r(r)) {
         Some(r) if cfg.hyst_share.is_none() && cfg.hyst_bouc_wen => {
             let (z, zu) = bouc_wen_gap(
                 &ctx.force_model,
