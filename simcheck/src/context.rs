@@ -424,4 +424,22 @@ mod tests {
         let rise = median_rise_time(&ds);
         assert!((rise - 0.85).abs() < 0.015, "{rise}");
     }
+
+    #[test]
+    fn a_loop_is_no_narrower_than_the_load_cells_noise_nor_wider_than_a_third_of_the_peak() {
+        let mut ds = presses();
+        // A load cell whose first differences alternate by 0.04 N: deadband 3 x 0.04 / 0.954.
+        for (i, f) in ds.force.iter_mut().enumerate() {
+            *f += if i % 2 == 0 { 0.02 } else { -0.02 };
+        }
+        let ctx = Context::new(&ds);
+        assert!(
+            ctx.force_deadband > 0.1 && ctx.force_deadband < 0.2,
+            "{}",
+            ctx.force_deadband
+        );
+        assert_eq!(ctx.hyst_r(0.01), ctx.force_deadband);
+        assert_eq!(ctx.hyst_r(1.0), 1.0);
+        assert_eq!(ctx.hyst_r(100.0), ctx.hyst_r_max);
+    }
 }
