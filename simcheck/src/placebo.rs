@@ -132,11 +132,8 @@ mod tests {
 
     #[test]
     fn transposing_swaps_rows_and_columns_and_keeps_every_reading() {
-        let mut ds = crate::testdata::presses();
+        let mut ds = crate::testdata::presses_on(2, 3);
         let len = ds.len();
-        ds.rows = 2;
-        ds.cols = 3;
-        ds.n = 6;
         ds.y = (0..len * 6).map(|v| v as f64).collect();
         let (t, old) = transposed(&ds);
         assert_eq!((t.rows, t.cols, t.n), (3, 2, 6));

@@ -7,6 +7,16 @@ pub fn presses() -> Dataset {
     presses_with_rest(1.0)
 }
 
+/// As [`presses`], read by a `rows` x `cols` matrix (every reading 0 until the test sets them).
+pub fn presses_on(rows: usize, cols: usize) -> Dataset {
+    let mut ds = presses();
+    ds.rows = rows;
+    ds.cols = cols;
+    ds.n = rows * cols;
+    ds.y = vec![0.0; ds.len() * ds.n];
+    ds
+}
+
 /// As [`presses`], with `rest_s` seconds of no load before each press.
 pub fn presses_with_rest(rest_s: f64) -> Dataset {
     let mut t = Vec::new();

@@ -170,11 +170,13 @@ pub(crate) fn force_noise_var(ctx: &Context, pred: &[f64]) -> Vec<f64> {
                     slope[b] = (hi.2 - lo.2) / (hi.1 - lo.1);
                 }
             }
-            let sum: f64 = (0..len)
-                .filter(|&i| force[i] > 0.0 && ctx.usable[i * n + k])
-                .map(|i| slope[bin(force[i])].powi(2))
-                .sum();
-            let used = (0..len).filter(|&i| ctx.usable[i * n + k]).count();
+            let (mut sum, mut used) = (0.0, 0usize);
+            for i in (0..len).filter(|&i| ctx.usable[i * n + k]) {
+                used += 1;
+                if force[i] > 0.0 {
+                    sum += slope[bin(force[i])].powi(2);
+                }
+            }
             sd_f * sd_f * sum / used.max(1) as f64
         })
         .collect()
@@ -188,10 +190,8 @@ mod tests {
     fn the_load_cells_noise_reaches_a_node_through_its_slope() {
         // Two nodes under the same presses with a noisy load cell: node 0's prediction rises
         // 100 units per newton, node 1's is flat.
-        let mut ds = crate::testdata::presses();
+        let mut ds = crate::testdata::presses_on(1, 2);
         let len = ds.len();
-        ds.n = 2;
-        ds.cols = 2;
         ds.y = vec![1000.0; len * 2];
         let mut state = 12345u64;
         for f in ds.force.iter_mut() {

@@ -368,10 +368,8 @@ mod tests {
     fn each_node_gets_its_own_sensitivity_in_each_trial() {
         // Two nodes, three mountings: node 0's sensitivity falls 0.8x in trial 1 and node
         // 1's rises 1.25x in trial 2 (a contact spot that moved), read through the amplifier.
-        let mut ds = crate::testdata::presses();
+        let mut ds = crate::testdata::presses_on(1, 2);
         let len = ds.len();
-        ds.n = 2;
-        ds.cols = 2;
         ds.trial = (0..len).map(|i| i * 3 / len).collect();
         ds.n_trials = 3;
         ds.trial_recorded = true;
@@ -418,10 +416,8 @@ mod tests {
     #[test]
     fn a_shape_every_node_shares_fits_a_saturating_law_the_power_law_cannot() {
         // Two nodes, the same soft saturation `1 - exp(-F / 3)` at different gains.
-        let mut ds = crate::testdata::presses();
+        let mut ds = crate::testdata::presses_on(1, 2);
         let len = ds.len();
-        ds.n = 2;
-        ds.cols = 2;
         ds.map = crate::data::ReadoutMap::from_readout(&taxel_sim::SensorModel::default().readout);
         ds.y = (0..len * 2)
             .map(|idx| {
