@@ -3,8 +3,12 @@
 //! from the nodes at rest and taken out of the readings before the diagnosis fits anything.
 //!
 //! At each quiet no-load sample (the force at most 2 % of its peak for the last
-//! [`QUIET_AFTER_S`]) the mean of the start model's held-out residual over the usable nodes
-//! observes the wander, with the nodes' own noise over their number as its variance; each
+//! [`QUIET_AFTER_S`]) the median of the start model's held-out residual over the usable nodes
+//! observes the wander, with the nodes' own noise over their number (times pi / 2, a median's
+//! loss of efficiency) as its variance: a wander moves every node, and the median does not
+//! follow what moves a few (a hysteresis set that a first press leaves on the nodes it loaded
+//! most; the nodes' mean did, and world B's mm_creep_hysteresis lost 150 counts of fake
+//! wander from every node for it); each
 //! trial's mean is taken out of these observations first (the wander is noise about zero: a
 //! mounting's own level, a curvature's baseline shift, is structure and stays). A Kalman
 //! filter and its Rauch-Tung-Striebel smoother run the AR(1) state through every sample, so
@@ -142,27 +146,27 @@ impl CommonWander {
         w
     }
 
-    /// Each sample's observation of the wander (the mean of `resid` over the usable nodes at a
-    /// quiet sample) and its variance (infinite where none).
+    /// Each sample's observation of the wander (the median of `resid` over the usable nodes at
+    /// a quiet sample) and its variance (infinite where none).
     fn observations(&self, ctx: &Context, resid: &[f64]) -> (Vec<f64>, Vec<f64>) {
         let n = ctx.ds.n;
         let len = ctx.ds.len();
         let mut obs = vec![0.0; len];
         let mut r = vec![f64::INFINITY; len];
+        let mut row = Vec::with_capacity(n);
         for i in 0..len {
             if !self.quiet(i) {
                 continue;
             }
-            let (mut s, mut c) = (0.0, 0usize);
-            for k in 0..n {
-                if ctx.usable[i * n + k] {
-                    s += resid[i * n + k];
-                    c += 1;
-                }
-            }
-            if c > 0 {
-                obs[i] = s / c as f64;
-                r[i] = self.own_variance / c as f64;
+            row.clear();
+            row.extend(
+                (0..n)
+                    .filter(|&k| ctx.usable[i * n + k])
+                    .map(|k| resid[i * n + k]),
+            );
+            if !row.is_empty() {
+                obs[i] = median_of(&mut row);
+                r[i] = MEDIAN_EFFICIENCY * self.own_variance / row.len() as f64;
             }
         }
         // Each trial's mean out: the wander is zero-mean noise, a mounting's level is not.
@@ -245,6 +249,20 @@ impl CommonWander {
         self.largest_taken_out = w.iter().fold(0.0, |a, v| a.max(v.abs()));
         self.taken_out = w;
         Some(out)
+    }
+}
+
+/// The variance of a median of `c` values with white noise, over their mean's (pi / 2).
+const MEDIAN_EFFICIENCY: f64 = std::f64::consts::FRAC_PI_2;
+
+/// The median of `v` (reordered; not empty): for an even count, the mean of the middle two.
+fn median_of(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let h = v.len() / 2;
+    if v.len().is_multiple_of(2) {
+        0.5 * (v[h - 1] + v[h])
+    } else {
+        v[h]
     }
 }
 
@@ -398,5 +416,40 @@ mod tests {
             None => 0.0,
         };
         assert!(moved < 0.05, "{cw:?} {moved}");
+    }
+
+    #[test]
+    fn a_set_on_one_node_is_not_taken_for_a_wander() {
+        // White noise on four nodes; node 0's level at rest rises by 40 counts for good at
+        // the first press past 10 N (a set). The nodes' median at rest does not move with one
+        // node, so no wander is taken out of the other three (the nodes' mean would follow
+        // node 0 by 10 counts).
+        let base = four_nodes(&[]);
+        let len = base.t.len();
+        let first = base.force.iter().position(|&f| f > 10.0).unwrap_or(len);
+        let mut rng = Rng::new(8, 1);
+        let extra: Vec<f64> = (0..len * 4)
+            .map(|idx| {
+                let step = if idx % 4 == 0 && idx / 4 >= first {
+                    40.0
+                } else {
+                    0.0
+                };
+                step + rng.normal()
+            })
+            .collect();
+        let ds = four_nodes(&extra);
+        let ctx = Context::new(&ds);
+        let resid: Vec<f64> = ds.y.iter().map(|y| 100.0 - y).collect();
+        let mut cw = CommonWander::estimate(&ctx, &resid, 1.0);
+        let _ = cw.take_out(&ctx, &resid);
+        assert!(first < len / 2);
+        assert!(
+            cw.largest_taken_out < 3.0,
+            "{} {} {}",
+            cw.largest_taken_out,
+            cw.variance,
+            cw.tau_s
+        );
     }
 }
