@@ -318,18 +318,35 @@ pub fn block_of(ds: &Dataset) -> Vec<usize> {
 }
 
 /// Contiguous time blocks, cut at trial changes too, about 1/24 of the recording each (at
-/// least 2 s and 20 samples); consecutive blocks alternate between the two folds.
+/// least 2 s and 20 samples); consecutive blocks alternate between the two folds. The rest
+/// before the first press (at least 40 samples) is cut in two blocks of its own, so both
+/// folds see the sensor before any load: what a first press sets for good (a hysteresis set,
+/// see [`crate::set`]) is otherwise unseen by the fold whose training half starts after it,
+/// and its prediction of that rest an extrapolation.
 #[allow(clippy::needless_range_loop)]
 fn blocks(ds: &Dataset) -> (Vec<usize>, usize) {
     let len = ds.len();
     let target = (ds.duration() / 24.0).max(2.0);
+    let first_press = ds
+        .force
+        .iter()
+        .position(|&f| f > 0.02 * ds.max_force())
+        .unwrap_or(0);
+    let virgin_cuts = if first_press >= 40 {
+        [first_press / 2, first_press]
+    } else {
+        [0, 0]
+    };
     let mut block = vec![0usize; len];
     let mut b = 0usize;
     let mut start_t = ds.t[0];
     let mut start_i = 0usize;
     for i in 0..len {
         let new_trial = i > 0 && ds.trial[i] != ds.trial[i - 1];
-        if i > start_i && (new_trial || (ds.t[i] - start_t >= target && i - start_i >= 20)) {
+        let virgin_cut = i > 0 && virgin_cuts.contains(&i);
+        if i > start_i
+            && (new_trial || virgin_cut || (ds.t[i] - start_t >= target && i - start_i >= 20))
+        {
             b += 1;
             start_t = ds.t[i];
             start_i = i;
@@ -441,5 +458,22 @@ mod tests {
         assert_eq!(ctx.hyst_r(0.01), ctx.force_deadband);
         assert_eq!(ctx.hyst_r(1.0), 1.0);
         assert_eq!(ctx.hyst_r(100.0), ctx.hyst_r_max);
+    }
+
+    #[test]
+    fn the_rest_before_the_first_press_is_seen_by_both_folds() {
+        // 3 s of rest before the first press: two blocks of their own, one in each fold, and
+        // the first press starts a block.
+        let ds = crate::testdata::presses_with_rest(3.0);
+        let block = block_of(&ds);
+        let first = ds.force.iter().position(|&f| f > 0.02 * ds.max_force());
+        let first = first.unwrap_or(0);
+        assert!(first >= 40);
+        assert_eq!(block[0], 0);
+        assert_eq!(block[first - 1], 1);
+        assert_eq!(block[first], 2);
+        let folds: std::collections::BTreeSet<usize> =
+            block[..first].iter().map(|b| b % 2).collect();
+        assert_eq!(folds.len(), 2);
     }
 }
