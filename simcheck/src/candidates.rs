@@ -376,7 +376,31 @@ fn candidate_variants(
                 ..s.clone()
             })
             .collect();
-        return vec![
+        // A set between the levels the largest force so far held: alone, or on top of the
+        // loop already in the model; the loops on top of a set already in it.
+        let levels = crate::set::levels(&ctx.force_model, ctx.force_deadband);
+        let set_on = |base: &Config| Config {
+            hyst_set: true,
+            set_levels: levels.clone(),
+            ..base.clone()
+        };
+        if cur.hyst_set {
+            return vec![
+                (starts, params),
+                (in_load, p_load),
+                (bouc_wen, p_bw),
+                (preisach, p_pr),
+                (additive_bw, p_abw),
+            ];
+        }
+        if cur.hysteresis.is_some() {
+            return if levels.is_empty() {
+                Vec::new()
+            } else {
+                vec![(vec![set_on(cur)], law_params(cur))]
+            };
+        }
+        let mut all = vec![
             (starts, params),
             (in_load, p_load),
             (bouc_wen, p_bw),
@@ -384,6 +408,10 @@ fn candidate_variants(
             (additive_bw, p_abw.clone()),
             (remnant, p_abw),
         ];
+        if !levels.is_empty() {
+            all.push((vec![set_on(cur)], law_params(cur)));
+        }
+        return all;
     }
     if e == EffectKind::ThermalDrift && ctx.ds.temp.is_some() {
         // With a temperature column: on the whole conductance, or on the force term only.
@@ -426,6 +454,45 @@ pub struct ParamCount {
     pub per_node: usize,
 }
 
+/// The parameters of a hysteresis loop (none without one): in the load path, half-width, mix
+/// and share; or Bouc-Wen saturation, exponent, share; or Preisach half-width, centre, spread
+/// and share. The additive Bouc-Wen: saturation, exponent, asymmetry and start state, and per
+/// node an amplitude and its growth with the load (and a remnant's ramps). The additive plays:
+/// half-width and mix, and per node an amplitude.
+fn loop_params(cfg: &Config) -> (usize, usize) {
+    if cfg.hysteresis.is_none() {
+        return (0, 0);
+    }
+    if cfg.hyst_bouc_wen && cfg.hyst_share.is_none() {
+        let remnant = if cfg.hyst_remnant {
+            crate::effects::REMNANT_RAMPS
+        } else {
+            0
+        };
+        (4, 2 + remnant)
+    } else if cfg.hyst_preisach || cfg.hyst_bouc_wen {
+        (4, 0)
+    } else if cfg.hyst_share.is_some() {
+        (3, 0)
+    } else {
+        (2, 1)
+    }
+}
+
+/// What candidate `cand` adds to `cur` for effect `e`: all of `e`'s parameters, less those of
+/// the part already in (a set's, when a loop joins it, or the other way round).
+pub fn added_params(cur: &Config, cand: &Config, e: EffectKind) -> ParamCount {
+    let all = n_params(cand, e);
+    if !cur.has(e) {
+        return all;
+    }
+    let have = n_params(cur, e);
+    ParamCount {
+        global: all.global.saturating_sub(have.global),
+        per_node: all.per_node.saturating_sub(have.per_node),
+    }
+}
+
 /// Parameters an effect adds.
 /// Parameters effect `e` adds to `cfg` (which holds it: a latent drift's knots count).
 pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
@@ -435,21 +502,18 @@ pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
             2 * cfg.creep.as_ref().map_or(2, Vec::len) + usize::from(cfg.creep_recovery != 1.0),
             0,
         ),
-        // In the load path: half-width, mix and share; or Bouc-Wen saturation, exponent, share;
-        // or Preisach half-width, centre, spread and share.
-        // The additive Bouc-Wen: saturation, exponent, asymmetry and start state, and per
-        // node an amplitude and its growth with the load.
-        EffectKind::Hysteresis if cfg.hyst_bouc_wen && cfg.hyst_share.is_none() => (
-            4,
-            2 + if cfg.hyst_remnant {
-                crate::effects::REMNANT_RAMPS
-            } else {
-                0
-            },
-        ),
-        EffectKind::Hysteresis if cfg.hyst_preisach || cfg.hyst_bouc_wen => (4, 0),
-        EffectKind::Hysteresis if cfg.hyst_share.is_some() => (3, 0),
-        EffectKind::Hysteresis => (2, 1),
+        // A loop's (see `loop_params`) and a set's: per node an amplitude per level.
+        EffectKind::Hysteresis => {
+            let (g, p) = loop_params(cfg);
+            (
+                g,
+                p + if cfg.hyst_set {
+                    cfg.set_levels.len()
+                } else {
+                    0
+                },
+            )
+        }
         EffectKind::ThermalDrift => match &cfg.thermal {
             Some(Thermal::Latent { knots_s, .. }) => (knots_s.len(), 0),
             _ => (2, 0),
@@ -522,7 +586,7 @@ mod tests {
         // global share (charged three global parameters and none per node), or a Bouc-Wen
         // state in the load path (saturation, share and exponent instead of the plays' mix).
         let hyst = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Hysteresis);
-        assert_eq!(hyst.len(), 6);
+        assert_eq!(hyst.len(), 7);
         let (additive, in_load, bouc_wen) = (&hyst[0], &hyst[1], &hyst[2]);
         let preisach = &hyst[3];
         // The additive Bouc-Wen: its start state searched, virgin and unloaded starts, two
@@ -557,6 +621,46 @@ mod tests {
         assert!(hyst[..5]
             .iter()
             .all(|v| v.0.iter().all(|c| !c.hyst_remnant)));
+        // A set alone: no loop, per node an amplitude per level, nothing searched but the law.
+        let set = &hyst[6].0[0];
+        assert!(set.hyst_set && set.hysteresis.is_none() && !set.set_levels.is_empty());
+        assert_eq!(
+            n_params(set, EffectKind::Hysteresis),
+            ParamCount {
+                global: 0,
+                per_node: set.set_levels.len()
+            }
+        );
+        assert_eq!(hyst[6].1, crate::search::law_params(set));
+        assert!(hyst[..6].iter().all(|v| v.0.iter().all(|c| !c.hyst_set)));
+        // On a model with the set: the loops on top of it (no remnant), charged for the loop
+        // only; on a model with a loop: the set on top of it.
+        let on_set = candidates(&ctx, set, EffectKind::Hysteresis);
+        assert_eq!(on_set.len(), 5);
+        assert!(on_set.iter().all(|v| v
+            .0
+            .iter()
+            .all(|c| c.hyst_set && c.hysteresis.is_some() && !c.hyst_remnant)));
+        let loop_on_set = &on_set[0].0[0];
+        assert_eq!(
+            added_params(set, loop_on_set, EffectKind::Hysteresis),
+            ParamCount {
+                global: 2,
+                per_node: 1
+            }
+        );
+        let plays = &additive.0[0];
+        let on_loop = candidates(&ctx, plays, EffectKind::Hysteresis);
+        assert_eq!(on_loop.len(), 1);
+        let set_on_loop = &on_loop[0].0[0];
+        assert!(set_on_loop.hyst_set && set_on_loop.hysteresis == plays.hysteresis);
+        assert_eq!(
+            added_params(plays, set_on_loop, EffectKind::Hysteresis),
+            ParamCount {
+                global: 0,
+                per_node: set.set_levels.len()
+            }
+        );
         assert!(preisach
             .0
             .iter()

@@ -1,22 +1,25 @@
 //! Physics an effect must show beyond a lower held-out error: thermal drift inferred without a
 //! temperature column must also improve the no-load samples (and, across mountings, the
 //! residual within them); thermal drift must act as a gain; hysteresis must be a loop and
-//! rate-independent.
+//! rate-independent (a set alone: see [`crate::set`]).
 
 use crate::cv::{Cv, Verdict};
 use crate::data::Dataset;
-use crate::effects::EffectKind;
+use crate::effects::{Config, EffectKind};
 use crate::noise::NoiseModel;
 
 /// Physics an effect must show beyond a lower error: thermal drift inferred without a
 /// temperature column must also improve the no-load samples (temperature moves unloaded
 /// nodes; creep and hysteresis cannot) and, on a recording of several mountings, the residual
 /// within them ([`within_trial_beta`]); thermal drift must act as a gain ([`gain_betas`]);
-/// hysteresis must be a loop and rate-independent.
+/// hysteresis must be a loop and rate-independent, or, as a set alone (`form`, the
+/// candidate's configuration), move the level at rest at new peaks only
+/// ([`crate::set::shows_set`]).
 pub fn signature_check(
     ds: &Dataset,
     noise: &NoiseModel,
     e: EffectKind,
+    form: &Config,
     before: &Cv,
     after: &Cv,
     v: &mut Verdict,
@@ -67,6 +70,16 @@ pub fn signature_check(
                 v.keep = false;
             }
         }
+    }
+    // A set alone must move the level at rest across the presses to a new peak only (a loop
+    // added on top of a set is judged as a loop).
+    if e == EffectKind::Hysteresis && form.hyst_set && form.hysteresis.is_none() {
+        let deadband = crate::context::force_deadband(&ds.force);
+        if !crate::set::shows_set(ds, deadband, before) {
+            v.accepted = false;
+            v.keep = false;
+        }
+        return;
     }
     // Hysteresis must be rate-independent (a loop that grows with the loading rate is a lag),
     // and a loop: what it changes must follow the loading direction.
@@ -506,6 +519,7 @@ mod tests {
                 ds,
                 &noise,
                 EffectKind::ThermalDrift,
+                &Config::base(1.0, 0.0),
                 &before,
                 &after,
                 &mut v,

@@ -123,6 +123,17 @@ pub struct Config {
     /// polymer, why piezoresistive sensors are pre-conditioned); a loop alone returns to its
     /// rest level.
     pub hyst_remnant: bool,
+    /// Hysteresis as a set: each node's reading raised for good by its own function of the
+    /// largest force so far, `M` (the Mullins effect of a filled polymer, as
+    /// [`Config::hyst_remnant`]). The function is piecewise linear between the levels `M` held
+    /// for a while (see [`crate::set::levels`]), one amplitude per level and node: a node's set
+    /// may be full after the first press (a node that carries much of the load) or come only
+    /// with the largest (a node at the edge of the contact). Alone (`hysteresis` is `None`) or
+    /// with a loop: a set is tested alone first, and a loop on top of it in a later round (or
+    /// the other way round).
+    pub hyst_set: bool,
+    /// The set's levels (N of the total force, rising; see [`crate::set::levels`]).
+    pub set_levels: Vec<f64>,
     /// In-load hysteresis as a Preisach model instead (see [`crate::preisach`]): relays on the
     /// node's own load, half-widths around `hysteresis` (N), centres around `preis_mu` (N)
     /// with sd `preis_sigma` (N); the share is `hyst_share`.
@@ -177,6 +188,8 @@ impl Config {
             hyst_bw_z0: 0.0,
             hyst_preisach: false,
             hyst_remnant: false,
+            hyst_set: false,
+            set_levels: Vec::new(),
             preis_mu: 0.0,
             preis_sigma: 1.0,
             thermal: None,
@@ -200,11 +213,18 @@ impl Config {
             }
             EffectKind::Saturation => self.saturation,
             EffectKind::Creep => self.creep.is_some(),
-            EffectKind::Hysteresis => self.hysteresis.is_some(),
+            EffectKind::Hysteresis => self.hysteresis.is_some() || self.hyst_set,
             EffectKind::ThermalDrift => self.thermal.is_some(),
             EffectKind::Crosstalk => self.crosstalk.is_some(),
             EffectKind::ScanSkew => self.scan_skew.is_some(),
         }
+    }
+
+    /// Whether effect `e` can still be added: it is not in, or it is hysteresis with a loop
+    /// but no set or a set but no loop (see [`Config::hyst_set`]).
+    pub fn open_to(&self, e: EffectKind) -> bool {
+        !self.has(e)
+            || (e == EffectKind::Hysteresis && (self.hysteresis.is_some() != self.hyst_set))
     }
 
     pub fn without(&self, e: EffectKind) -> Config {
@@ -236,6 +256,8 @@ impl Config {
                 c.hyst_bw_z0 = 0.0;
                 c.hyst_preisach = false;
                 c.hyst_remnant = false;
+                c.hyst_set = false;
+                c.set_levels = Vec::new();
             }
             EffectKind::ThermalDrift => {
                 c.thermal = None;
@@ -278,6 +300,8 @@ impl Config {
                 c.hyst_bw_z0 = from.hyst_bw_z0;
                 c.hyst_preisach = from.hyst_preisach;
                 c.hyst_remnant = from.hyst_remnant;
+                c.hyst_set = from.hyst_set;
+                c.set_levels.clone_from(&from.set_levels);
                 c.preis_mu = from.preis_mu;
                 c.preis_sigma = from.preis_sigma;
             }
@@ -308,6 +332,8 @@ impl Config {
                     && self.hyst_bouc_wen == other.hyst_bouc_wen
                     && self.hyst_preisach == other.hyst_preisach
                     && self.hyst_remnant == other.hyst_remnant
+                    && self.hyst_set == other.hyst_set
+                    && self.hysteresis.is_some() == other.hysteresis.is_some()
             }
             EffectKind::ThermalDrift => {
                 let knots = |c: &Config| match &c.thermal {

@@ -18,7 +18,7 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use crate::candidates::{n_params, ParamCount};
+use crate::candidates::{added_params, ParamCount};
 use crate::cv::{compare, Cv, Verdict};
 use crate::diagnose::Trial;
 use crate::effects::EffectKind;
@@ -103,7 +103,10 @@ impl Selection<'_> {
                 params.push(p);
             }
         }
-        let (ka, kb) = (n_params(&starts[0], a), n_params(&starts[0], b));
+        let (ka, kb) = (
+            added_params(&self.cur, &starts[0], a),
+            added_params(&self.cur, &starts[0], b),
+        );
         let k = ParamCount {
             global: ka.global + kb.global,
             per_node: ka.per_node + kb.per_node,

@@ -11,7 +11,7 @@
 //! `effects` and `forms` (the effect library's configuration and functional forms), `model`
 //! (the forward model and its per-node least squares), `search` (the parameter search),
 //! `candidates` (what each effect tries), `cv` (cross-validation and the acceptance rule),
-//! `checks` (physics an effect must show), `diagnose` (forward selection and backward pass),
+//! `checks` (physics an effect must show), `set` (hysteresis as a set without a loop), `diagnose` (forward selection and backward pass),
 //! `locate` (where the residual is structured), `named` and `unexplained` (what the verdict
 //! says), `report` (report.md, report.json, SIM.toml, figures), `refworld` and `cli`.
 
@@ -40,6 +40,7 @@ pub mod report;
 pub mod screen;
 pub mod search;
 mod selection;
+pub mod set;
 pub mod simlaw;
 #[cfg(test)]
 mod testdata;

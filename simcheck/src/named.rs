@@ -53,6 +53,12 @@ pub fn effect_params(
             }
         }
         EffectKind::Hysteresis => {
+            if cfg.hyst_set {
+                p.insert("set".into(), 1.0);
+                for (j, l) in cfg.set_levels.iter().enumerate() {
+                    p.insert(format!("set_level_{j}_n"), *l);
+                }
+            }
             if let Some(r) = cfg.hysteresis {
                 p.insert("weight".into(), hysteresis_weight(ds, cfg, theta));
                 if cfg.hyst_preisach {
@@ -207,16 +213,20 @@ pub fn hysteresis_weight(ds: &Dataset, cfg: &Config, theta: &[Vec<f64>]) -> f64 
             let a = t[t.len() - 1];
             // The additive Bouc-Wen's two amplitudes (on z and on z F / F_max) at the mean
             // loaded force.
-            // The remnant's ramps sit between them and the law's gain.
+            // The remnant's and a set's ramps sit between them and the law's gain.
             let skip = if cfg.hyst_remnant {
                 crate::effects::REMNANT_RAMPS
+            } else {
+                0
+            } + if cfg.hyst_set {
+                cfg.set_levels.len()
             } else {
                 0
             };
             let h = if cfg.hyst_bouc_wen && t.len() >= 4 + skip {
                 t[t.len() - 3 - skip] + t[t.len() - 2 - skip] * fbar / fmax.max(1e-9)
             } else {
-                t[t.len() - 2] * (1.0 + cfg.hyst_mix)
+                t[t.len() - 2 - skip] * (1.0 + cfg.hyst_mix)
             };
             h / (a * cfg.exponent * fbar.max(1e-9).powf(cfg.exponent - 1.0))
         })

@@ -6,7 +6,7 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use crate::candidates::{applicable, candidates, n_params, ParamCount};
+use crate::candidates::{added_params, applicable, candidates, n_params, ParamCount};
 use crate::checks::signature_check;
 use crate::context::Context;
 use crate::cv::{compare, cross_validate, cross_validate_from, Cv, Verdict};
@@ -247,7 +247,7 @@ impl Selection<'_> {
             .into_iter()
             .filter(|&e| {
                 !matches!(e, EffectKind::Saturation | EffectKind::Crosstalk)
-                    && !self.cur.has(e)
+                    && self.cur.open_to(e)
                     && applicable(self.ctx, &self.cur, e).is_ok()
             })
             .collect();
@@ -318,8 +318,14 @@ impl Selection<'_> {
                 }
             }
             let first = &first;
-            let (cv, mut v, screened) = self.held_out(&starts, &params, n_params(first, e));
-            signature_check(ds, &self.noise, e, &self.cur_cv, &cv, &mut v);
+            // A set must show in the current model's residual (the check its verdict gets
+            // anyway, see `checks::signature_check`): without it the test is not run.
+            if first.hyst_set && !self.cur.hyst_set && !self.shows_set() {
+                continue;
+            }
+            let k = added_params(&self.cur, first, e);
+            let (cv, mut v, screened) = self.held_out(&starts, &params, k);
+            signature_check(ds, &self.noise, e, first, &self.cur_cv, &cv, &mut v);
             // Among the variants the rule accepts, the best held-out fit; else the one the
             // criterion likes best (for the report).
             let better = |t: &(Tested, Vec<Param>)| match (v.accepted, t.0 .1.accepted) {
@@ -338,6 +344,12 @@ impl Selection<'_> {
         }
         self.last_fits.insert(e, (tested.0.fits.clone(), params));
         Some(tested)
+    }
+
+    /// Whether the current model's held-out residual shows a hysteresis set (see
+    /// [`crate::set::shows_set`]).
+    fn shows_set(&self) -> bool {
+        crate::set::shows_set(self.ctx.ds, self.ctx.force_deadband, &self.cur_cv)
     }
 
     /// A hysteresis won with a remnant keeps it only when the remnant earns its ramps against
@@ -370,8 +382,14 @@ impl Selection<'_> {
             return (with, params);
         }
         let e = EffectKind::Hysteresis;
-        let mut v = compare(self.ctx, &self.cur_cv, &cv, n_params(a, e), &self.noise);
-        signature_check(ds, &self.noise, e, &self.cur_cv, &cv, &mut v);
+        let mut v = compare(
+            self.ctx,
+            &self.cur_cv,
+            &cv,
+            added_params(&self.cur, a, e),
+            &self.noise,
+        );
+        signature_check(ds, &self.noise, e, a, &self.cur_cv, &cv, &mut v);
         ((cv, v, false), params)
     }
 
@@ -414,7 +432,7 @@ impl Selection<'_> {
                 let Some(first) = starts.first() else {
                     return (f64::INFINITY, (starts, params));
                 };
-                let k = n_params(first, e);
+                let k = added_params(&self.cur, first, e);
                 let sse = starts
                     .iter()
                     .map(|c| train_sse(self.screen, c, &|_| true))
@@ -529,7 +547,16 @@ impl Selection<'_> {
                     &self.noise,
                 );
                 let checked = v;
-                signature_check(ds, &self.noise, e, &cv_minus, &self.cur_cv, &mut v);
+                // Taking out a set takes any loop on it too: judged by the set's signature.
+                let form = if self.cur.hyst_set {
+                    Config {
+                        hysteresis: None,
+                        ..self.cur.clone()
+                    }
+                } else {
+                    self.cur.clone()
+                };
+                signature_check(ds, &self.noise, e, &form, &cv_minus, &self.cur_cv, &mut v);
                 // A drift of the force term only leaves the rest level alone and is not
                 // gain-checked when it is tested (`checks::gain_betas` is NaN then); held out
                 // here, the change at rest is the other effects refitting (a creep's recovery),

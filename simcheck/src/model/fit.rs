@@ -284,6 +284,7 @@ impl NodeFit<'_> {
                 solve_spd(a, b, pdim)
             }
         };
+        ridge(a, pdim, lay.ridged_range());
         let th = solve(a, b);
         if th[0] >= 0.0 {
             return th;
@@ -433,6 +434,15 @@ impl NodeFit<'_> {
 
 /// Adds one weighted observation `z` with regressors `xrow` to the lower triangle of the
 /// normal equations `a` and to `b`.
+/// Adds the ridge of [`super::REMNANT_RIDGE`] (a share of the intercept's weight, `a[0]`) to
+/// the diagonal of the normal equations `a` (`pdim` x `pdim`) at the amplitudes `range`.
+fn ridge(a: &mut [f64], pdim: usize, range: std::ops::Range<usize>) {
+    let lam = super::REMNANT_RIDGE * a[0];
+    for u in range {
+        a[u * pdim + u] += lam;
+    }
+}
+
 fn accumulate(a: &mut [f64], b: &mut [f64], xrow: &[f64], w: f64, z: f64) {
     // The usual sizes unrolled at compile time (the same sums in the same order).
     match xrow.len() {
@@ -473,6 +483,46 @@ fn accumulate_any(a: &mut [f64], b: &mut [f64], xrow: &[f64], w: f64, z: f64) {
         b[u] += w * xrow[u] * z;
         for v in 0..=u {
             a[u * pdim + v] += w * xrow[u] * xrow[v];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_ridge_keeps_an_unseen_ramp_from_an_arbitrary_amplitude() {
+        // Training samples where the remnant's first ramp is 0.75 + 0.25 x the second (the
+        // first press reached three quarters of the first ramp; the rest before it is unseen),
+        // and the reading steps by 10 where the second ramp is on.
+        let rows: Vec<([f64; 3], f64)> = (0..200)
+            .map(|i| {
+                let r1 = if i < 50 { 0.0 } else { 1.0 };
+                ([1.0, 0.75 + 0.25 * r1, r1], 100.0 + 10.0 * r1)
+            })
+            .collect();
+        let (mut a, mut b) = (vec![0.0; 9], vec![0.0; 3]);
+        for (x, y) in &rows {
+            accumulate(&mut a, &mut b, x, 1.0, *y);
+        }
+        for u in 0..3 {
+            for w in u + 1..3 {
+                a[u * 3 + w] = a[w * 3 + u];
+            }
+        }
+        // The unseen rest (both ramps 0): without the ridge the solver puts an arbitrary split
+        // of the step on the two ramps and predicts far from any level seen; with it, about
+        // the level before the step (the smallest amplitudes that fit).
+        let plain = solve_spd(&a, &b, 3);
+        ridge(&mut a, 3, 1..3);
+        let ridged = solve_spd(&a, &b, 3);
+        assert!((plain[0] - 100.0).abs() > 20.0, "{plain:?}");
+        assert!((ridged[0] - 100.0).abs() < 3.0, "{ridged:?}");
+        // Both fit the training samples.
+        for th in [&plain, &ridged] {
+            let fit = |x: &[f64; 3]| th.iter().zip(x).map(|(t, v)| t * v).sum::<f64>();
+            assert!(rows.iter().all(|(x, y)| (fit(x) - y).abs() < 0.1), "{th:?}");
         }
     }
 }

@@ -331,6 +331,18 @@ fn predict(
     (pred, train_sse)
 }
 
+/// The ridge on a remnant's ramp amplitudes (and a set's amplitude, [`Config::hyst_set`]), as a
+/// share of the intercept's weight (the
+/// training samples' total weight). A remnant is a function of the largest force so far, and
+/// the levels that takes are contiguous spans of time: a fold that never saw a span (the rest
+/// before the first press, a first rise to a new peak) cannot tell some ramps from the
+/// intercept or from each other, and an unpenalised solve then puts an arbitrary amplitude on
+/// them that the held-out span pays for in full (hundreds of counts on world B's
+/// mm_creep_hysteresis). The ridge makes such a direction take the smallest amplitudes that fit
+/// (no remnant where none was seen); it shrinks a ramp the data support by about
+/// `REMNANT_RIDGE` over the share of the samples that support it, so a resolution only.
+pub const REMNANT_RIDGE: f64 = 1e-3;
+
 /// Where each per-node linear parameter sits in `theta`: the intercept, the curvature-baseline
 /// slope (on the curvature, or on the trial's no-load shift), the hysteresis amplitude, and
 /// last the static law's parameters (the power law's gain, or a spline's coefficients).
@@ -338,8 +350,12 @@ fn predict(
 pub struct Layout {
     pub n_int: usize,
     pub curv_k: bool,
-    /// The additive hysteresis regressors (0, 1, or 2 for the additive Bouc-Wen).
+    /// The additive hysteresis regressors (0, 1, or 2 for the additive Bouc-Wen; with a
+    /// remnant, its ramps too).
     pub hyst: usize,
+    /// How many of the last `hyst` regressors are a remnant's ramps or a set's amplitude
+    /// (ridged, see [`REMNANT_RIDGE`]).
+    pub ridged: usize,
     /// The static law's parameters per node.
     pub law: usize,
 }
@@ -352,6 +368,11 @@ impl Layout {
     /// Index of the (first) additive hysteresis amplitude.
     pub fn hyst_index(&self) -> usize {
         self.n_int + usize::from(self.curv_k)
+    }
+
+    /// The indices of the ridged amplitudes (a remnant's ramps, a set's amplitude).
+    pub fn ridged_range(&self) -> std::ops::Range<usize> {
+        self.law_start() - self.ridged..self.law_start()
     }
 
     /// Index of the static law's first parameter.

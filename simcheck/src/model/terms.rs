@@ -24,7 +24,8 @@ pub(super) struct Terms {
     n: usize,
     hyst: Vec<f64>,
     /// The additive hysteresis's further regressors, after `hyst`: the additive Bouc-Wen's
-    /// second (`z F / F_max`), then the remnant's ramps (see [`remnant_ramps`]).
+    /// second (`z F / F_max`), then the remnant's ramps (see [`remnant_ramps`]), then a set's
+    /// (see [`crate::set::ramps`]; the first of them is `hyst` when there is no additive loop).
     hyst2: Vec<Vec<f64>>,
     curv_x: Vec<f64>,
 }
@@ -48,9 +49,20 @@ impl Terms {
         let loads = Loads::new(ctx, cfg, skew, need.as_deref(), step);
         let sens = sensitivity(ctx, cfg);
         let curv_x = curvature_regressor(ctx, cfg);
-        let (hyst, mut hyst2) = additive_hysteresis(ctx, cfg);
+        let (mut hyst, mut hyst2) = additive_hysteresis(ctx, cfg);
+        // A remnant's ramps, then a set's (either may come with a loop), are ridged.
+        let mut ridged = 0;
         if cfg.hyst_remnant && !hyst.is_empty() {
             hyst2.extend(remnant_ramps(&ctx.force_model));
+            ridged = REMNANT_RAMPS;
+        }
+        if cfg.hyst_set {
+            let mut ramps = crate::set::ramps(&ctx.force_model, &cfg.set_levels);
+            ridged += ramps.len();
+            if hyst.is_empty() && !ramps.is_empty() {
+                hyst = ramps.remove(0);
+            }
+            hyst2.extend(ramps);
         }
         let basis = match cfg.law {
             Law::Power => None,
@@ -60,6 +72,7 @@ impl Terms {
             n_int: 1,
             curv_k: cfg.curv_base,
             hyst: usize::from(!hyst.is_empty()) + hyst2.len(),
+            ridged,
             law: cfg.law.per_node(),
         };
         Terms {

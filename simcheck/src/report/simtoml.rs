@@ -192,6 +192,9 @@ fn hysteresis(
     theta: &[Vec<f64>],
     notes: &mut Vec<String>,
 ) {
+    if cfg.hyst_set {
+        notes.push(format!("hysteresis: the tool fits a set: each node's reading raised for good by its own piecewise-linear function of the largest force so far, between the levels that force held ({:.3?} N){}; taxel-sim has no set, and SIM.toml leaves it out", cfg.set_levels, if cfg.hysteresis.is_some() { ", beside the loop below" } else { ", with no loop" }));
+    }
     m.hysteresis = cfg.hysteresis.map(|r| match cfg.hyst_share {
         Some(share) if cfg.hyst_bouc_wen => Hysteresis {
             weight: share.clamp(-1.0, 1.0),
