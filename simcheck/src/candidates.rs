@@ -493,7 +493,6 @@ pub fn added_params(cur: &Config, cand: &Config, e: EffectKind) -> ParamCount {
     }
 }
 
-/// Parameters an effect adds.
 /// Parameters effect `e` adds to `cfg` (which holds it: a latent drift's knots count).
 pub fn n_params(cfg: &Config, e: EffectKind) -> ParamCount {
     let (global, per_node) = match e {
