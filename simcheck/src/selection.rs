@@ -108,7 +108,7 @@ impl Selection<'_> {
             }
             if v.accepted {
                 let before = self.cur_cv.clone();
-                self.join(&cv);
+                self.join(&cv.fits);
                 let k = n_params(&self.cur, e);
                 let v = compare(self.ctx, &before, &self.cur_cv, k, &self.noise);
                 self.fixed.insert(e, (before, v));
@@ -199,7 +199,7 @@ impl Selection<'_> {
             screened: false,
         });
         if v.accepted {
-            self.join(&cv);
+            self.join(&cv.fits);
         }
         v.accepted
     }
@@ -288,7 +288,7 @@ impl Selection<'_> {
         let before = self.cur_cv.clone();
         let names: Vec<&str> = effects.iter().map(|e| e.name()).collect();
         let _sp = crate::timing::span(format!("join {}", names.join(" + ")));
-        self.join(&cv);
+        self.join(&cv.fits);
         // The model without the effect that joined is the one before (not for two at once).
         self.last = match effects[..] {
             [e] => Some((e, before)),
@@ -457,8 +457,7 @@ impl Selection<'_> {
     /// The accepted candidate joins: all parameters are refitted on the whole recording, from
     /// the better (on the whole recording) of the candidate's two training-fold fits, and the
     /// refitted model is held out the way the next round's candidates will be.
-    fn join(&mut self, won: &Cv) {
-        let fold_fits = &won.fits;
+    fn join(&mut self, fold_fits: &[Config]) {
         let ctx = self.ctx;
         let has_kappa = ctx.ds.kappa.is_some();
         let added = fold_fits
@@ -503,20 +502,6 @@ impl Selection<'_> {
             &refit_params(&self.cur, has_kappa),
             self.ev_n,
         );
-        // A joint refit whose folds, started from it, hold out worse than the candidate did
-        // lost what the test showed (a whole-recording optimum that is a poor start on each
-        // half: world B's mm_thermal held out 4.37 as a candidate and 8.30 joined): the folds
-        // are refitted again from the candidate's own fits on the same halves, and the better
-        // held-out result is the one the next round must beat.
-        if self.cur_cv.sse > won.sse {
-            let [a, b] = &won.fits;
-            let from = [std::slice::from_ref(a), std::slice::from_ref(b)];
-            let alt =
-                cross_validate_from(ctx, from, &refit_params(&self.cur, has_kappa), self.ev_n);
-            if alt.sse < self.cur_cv.sse {
-                self.cur_cv = alt;
-            }
-        }
     }
 
     /// Backward pass: drops an effect the others made unnecessary, until every effect left
