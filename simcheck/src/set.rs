@@ -1,16 +1,16 @@
-//! Hysteresis as a set alone ([`crate::effects::Config::hyst_set`]): a first load to a new
-//! level raises the reading for good, each node by its own function of the largest force so
-//! far, with no loop on later presses (the Mullins effect of a filled polymer). Its levels, its
+//! Hysteresis as a set ([`crate::effects::Config::hyst_set`]): a first load to a new level
+//! raises the reading for good, each node by its own function of the largest force so far
+//! (the Mullins effect of a filled polymer); alone, or under a loop. Its levels, its
 //! regressors, and the signature it must show: the level at rest moves across the presses
 //! that reach a new peak and stays put across the others.
 
 use crate::cv::Cv;
 use crate::data::Dataset;
 
-/// Most levels of a set alone.
+/// Most levels of a set.
 pub const SET_LEVELS: usize = 3;
 
-/// The levels a set alone is piecewise linear between: the values the largest force so far,
+/// The levels a set is piecewise linear between: the values the largest force so far,
 /// `M`, held for at least a twentieth of the recording. A new peak counts as a new level once
 /// it passes where the last one started by a tenth of the peak force, or by three times the
 /// load cell's noise band (`deadband`, three standard deviations) if that is more, so a held
@@ -79,8 +79,8 @@ pub fn ramps(force: &[f64], levels: &[f64]) -> Vec<Vec<f64>> {
 /// Whether the residual `before` a set shows one: between consecutive rests (spans at most
 /// 2 % of the peak force, each one's level the median of its second half per node, where a
 /// press's recovery has mostly settled), the level must move more across every press that
-/// reaches a new peak (by the rule of [`levels`]) than across any other press (the size of a
-/// move: its sum of squares over nodes). A drift moves the rest level across every press
+/// reaches a new peak (passing the largest press before it by the step of [`levels`]) than
+/// across any other press (the size of a move: its sum of squares over nodes). A drift moves the rest level across every press
 /// alike, and so does a creep's slow recovery after a large press; a set only at new peaks.
 /// False when there is no press of either kind to compare.
 pub fn shows_set(ds: &Dataset, deadband: f64, before: &Cv) -> bool {
