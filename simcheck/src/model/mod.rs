@@ -331,9 +331,8 @@ fn predict(
     (pred, train_sse)
 }
 
-/// The ridge on a remnant's ramp amplitudes (and a set's amplitude, [`Config::hyst_set`]), as a
-/// share of the intercept's weight (the
-/// training samples' total weight). A remnant is a function of the largest force so far, and
+/// The ridge on a remnant's ramp amplitudes (and a set's, [`Config::hyst_set`]), as a share
+/// of the intercept's weight (the training samples' total weight). A remnant is a function of the largest force so far, and
 /// the levels that takes are contiguous spans of time: a fold that never saw a span (the rest
 /// before the first press, a first rise to a new peak) cannot tell some ramps from the
 /// intercept or from each other, and an unpenalised solve then puts an arbitrary amplitude on
@@ -353,8 +352,8 @@ pub struct Layout {
     /// The additive hysteresis regressors (0, 1, or 2 for the additive Bouc-Wen; with a
     /// remnant, its ramps too).
     pub hyst: usize,
-    /// How many of the last `hyst` regressors are a remnant's ramps or a set's amplitude
-    /// (ridged, see [`REMNANT_RIDGE`]).
+    /// How many of the last `hyst` regressors are a remnant's or a set's ramps (ridged, see
+    /// [`REMNANT_RIDGE`]).
     pub ridged: usize,
     /// The static law's parameters per node.
     pub law: usize,
@@ -370,7 +369,7 @@ impl Layout {
         self.n_int + usize::from(self.curv_k)
     }
 
-    /// The indices of the ridged amplitudes (a remnant's ramps, a set's amplitude).
+    /// The indices of the ridged amplitudes (a remnant's or a set's ramps).
     pub fn ridged_range(&self) -> std::ops::Range<usize> {
         self.law_start() - self.ridged..self.law_start()
     }
