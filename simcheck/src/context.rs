@@ -318,22 +318,11 @@ pub fn block_of(ds: &Dataset) -> Vec<usize> {
 }
 
 /// Contiguous time blocks, cut at trial changes too, about 1/24 of the recording each (at
-/// least 2 s and 20 samples); consecutive blocks alternate between the two folds. When the
-/// rest before the first press (at least 40 samples) lies in the first block alone, its first
-/// half joins the second block, so both folds see the sensor before any load: what a first
-/// press sets for good (a hysteresis set, see [`crate::set`]) is otherwise unseen by the fold
-/// whose training half starts after it, and its prediction of that rest an extrapolation.
-/// (Cutting that rest into blocks of its own moved every later block's bounds, and marginal
-/// cases of the zoo changed their verdicts with the folds.)
+/// least 2 s and 20 samples); consecutive blocks alternate between the two folds.
 #[allow(clippy::needless_range_loop)]
 fn blocks(ds: &Dataset) -> (Vec<usize>, usize) {
     let len = ds.len();
     let target = (ds.duration() / 24.0).max(2.0);
-    let first_press = ds
-        .force
-        .iter()
-        .position(|&f| f > 0.02 * ds.max_force())
-        .unwrap_or(0);
     let mut block = vec![0usize; len];
     let mut b = 0usize;
     let mut start_t = ds.t[0];
@@ -346,9 +335,6 @@ fn blocks(ds: &Dataset) -> (Vec<usize>, usize) {
             start_i = i;
         }
         block[i] = b;
-    }
-    if first_press >= 40 && b >= 1 && block[first_press - 1] == block[0] {
-        block[..first_press / 2].fill(1);
     }
     (block, b + 1)
 }
@@ -455,27 +441,5 @@ mod tests {
         assert_eq!(ctx.hyst_r(0.01), ctx.force_deadband);
         assert_eq!(ctx.hyst_r(1.0), 1.0);
         assert_eq!(ctx.hyst_r(100.0), ctx.hyst_r_max);
-    }
-
-    #[test]
-    fn the_rest_before_the_first_press_is_seen_by_both_folds() {
-        // 3 s of rest before the first press, inside the first block: its first half joins
-        // the second block (the other fold); every block's bounds stay where they were.
-        let ds = crate::testdata::presses_with_rest(3.0);
-        let block = block_of(&ds);
-        let first = ds.force.iter().position(|&f| f > 0.02 * ds.max_force());
-        let first = first.unwrap_or(0);
-        assert!(first >= 40);
-        assert_eq!(block[0], 1);
-        assert_eq!(block[first / 2 - 1], 1);
-        assert_eq!(block[first / 2], 0);
-        assert_eq!(block[first], 0);
-        let folds: std::collections::BTreeSet<usize> =
-            block[..first].iter().map(|b| b % 2).collect();
-        assert_eq!(folds.len(), 2);
-        // Elsewhere the blocks are contiguous and rise by one.
-        assert!(block[first / 2..]
-            .windows(2)
-            .all(|w| w[1] == w[0] || w[1] == w[0] + 1));
     }
 }

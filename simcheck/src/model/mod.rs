@@ -331,15 +331,17 @@ fn predict(
     (pred, train_sse)
 }
 
-/// The ridge on a remnant's ramp amplitudes (and a set's, [`Config::hyst_set`]), as a share
-/// of the intercept's weight (the training samples' total weight). A remnant is a function of the largest force so far, and
-/// the levels that takes are contiguous spans of time: a fold that never saw a span (the rest
-/// before the first press, a first rise to a new peak) cannot tell some ramps from the
-/// intercept or from each other, and an unpenalised solve then puts an arbitrary amplitude on
-/// them that the held-out span pays for in full (hundreds of counts on world B's
-/// mm_creep_hysteresis). The ridge makes such a direction take the smallest amplitudes that fit
-/// (no remnant where none was seen); it shrinks a ramp the data support by about
-/// `REMNANT_RIDGE` over the share of the samples that support it, so a resolution only.
+/// The ridge on a hysteresis set's ramp amplitudes ([`Config::hyst_set`]), as a share of the
+/// intercept's weight (the training samples' total weight). A set is a function of the
+/// largest force so far, and the levels that takes are contiguous spans of time: a fold that
+/// never saw a span (the rest before the first press, a first rise to a new peak) cannot tell
+/// some ramps from the intercept or from each other, and an unpenalised solve then puts an
+/// arbitrary amplitude on them that the held-out span pays for in full (hundreds of counts on
+/// world B's mm_creep_hysteresis, with the remnant's ramps). The ridge makes such a direction
+/// take the smallest amplitudes that fit (no set where none was seen); it shrinks a ramp the
+/// data support by about `REMNANT_RIDGE` over the share of the samples that support it, so a
+/// resolution only. The remnant's own ramps ([`Config::hyst_remnant`]) are not ridged: that
+/// moved zoo-hys's loop on training seed 2 enough for creep to be named beside it.
 pub const REMNANT_RIDGE: f64 = 1e-3;
 
 /// Where each per-node linear parameter sits in `theta`: the intercept, the curvature-baseline
@@ -352,7 +354,7 @@ pub struct Layout {
     /// The additive hysteresis regressors (0, 1, or 2 for the additive Bouc-Wen; with a
     /// remnant, its ramps too).
     pub hyst: usize,
-    /// How many of the last `hyst` regressors are a remnant's or a set's ramps (ridged, see
+    /// How many of the last `hyst` regressors are a set's ramps (ridged, see
     /// [`REMNANT_RIDGE`]).
     pub ridged: usize,
     /// The static law's parameters per node.
@@ -369,7 +371,7 @@ impl Layout {
         self.n_int + usize::from(self.curv_k)
     }
 
-    /// The indices of the ridged amplitudes (a remnant's or a set's ramps).
+    /// The indices of the ridged amplitudes (a set's ramps).
     pub fn ridged_range(&self) -> std::ops::Range<usize> {
         self.law_start() - self.ridged..self.law_start()
     }

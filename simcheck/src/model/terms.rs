@@ -50,11 +50,10 @@ impl Terms {
         let sens = sensitivity(ctx, cfg);
         let curv_x = curvature_regressor(ctx, cfg);
         let (mut hyst, mut hyst2) = additive_hysteresis(ctx, cfg);
-        // A remnant's ramps, then a set's (either may come with a loop), are ridged.
+        // A remnant's ramps, then a set's (either may come with a loop); the set's are ridged.
         let mut ridged = 0;
         if cfg.hyst_remnant && !hyst.is_empty() {
             hyst2.extend(remnant_ramps(&ctx.force_model));
-            ridged = REMNANT_RAMPS;
         }
         if cfg.hyst_set {
             let mut ramps = crate::set::ramps(&ctx.force_model, &cfg.set_levels);
