@@ -493,7 +493,7 @@ mod tests {
 
     #[test]
     fn the_ridge_keeps_an_unseen_ramp_from_an_arbitrary_amplitude() {
-        // Training samples where the remnant's first ramp is 0.75 + 0.25 x the second (the
+        // Training samples where a set's first ramp is 0.75 + 0.25 x the second (the
         // first press reached three quarters of the first ramp; the rest before it is unseen),
         // and the reading steps by 10 where the second ramp is on.
         let rows: Vec<([f64; 3], f64)> = (0..200)
