@@ -284,22 +284,12 @@ fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<Vec<f64>>)
 /// piecewise-linear ramps over thirds of the peak force (`clamp(3 M / F_max - j, 0, 1)`, `j`
 /// = 0, 1, 2), so each node's remnant is its own function of `M`, 0 before any load.
 pub(super) fn remnant_ramps(force: &[f64]) -> Vec<Vec<f64>> {
+    // A set's ramps between fixed levels at thirds of the peak.
     let fmax = force.iter().copied().fold(0.0, f64::max).max(1e-12);
-    let mut m = 0.0f64;
-    let most: Vec<f64> = force
-        .iter()
-        .map(|&f| {
-            m = m.max(f);
-            3.0 * m / fmax
-        })
+    let levels: Vec<f64> = (1..=REMNANT_RAMPS)
+        .map(|j| fmax * j as f64 / REMNANT_RAMPS as f64)
         .collect();
-    (0..REMNANT_RAMPS)
-        .map(|j| {
-            most.iter()
-                .map(|&x| (x - j as f64).clamp(0.0, 1.0))
-                .collect()
-        })
-        .collect()
+    crate::set::ramps(force, &levels)
 }
 
 #[cfg(test)]
