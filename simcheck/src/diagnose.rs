@@ -97,6 +97,10 @@ pub struct Diagnosis {
     pub load_scale: Vec<f64>,
     pub responsiveness: Vec<f64>,
     pub direction: Vec<i8>,
+    /// Whether the held-out results (the base's and the final model's) are on the folds that
+    /// share the rest before the first press: a model that remembers the largest load joined
+    /// (see [`Context::virgin_rest_shared`]).
+    pub virgin_rest_shared: bool,
     pub seconds: f64,
 }
 /// Where a diagnosis is, for a progress display: a stage and a step of it.
@@ -154,9 +158,14 @@ pub fn diagnose_with(
     let mut noise = NoiseModel::estimate(&ctx, &start_cv.resid);
     noise.wander = wander;
     let screen = ctx.coarser(crate::screen::FACTOR);
+    let shared_ctx = ctx.virgin_rest_shared();
+    let shared_screen = shared_ctx
+        .as_ref()
+        .map(|c| c.coarser(crate::screen::FACTOR));
     let mut sel = crate::selection::Selection {
         ctx: &ctx,
         screen: &screen,
+        shared: shared_ctx.as_ref().zip(shared_screen.as_ref()),
         ev_n,
         cfg0,
         cur: start_fit,
@@ -179,7 +188,6 @@ pub fn diagnose_with(
     let base = sel.cur.clone();
     let base_cv = sel.cur_cv.clone();
     let base_eval = evaluate(&ctx, &base, &|_| true);
-    let base_findings = locate(&ctx, &base_cv.resid, &base_eval.pred);
     for round in 1..=opts.max_effects {
         let _sp = crate::timing::span(format!("round {round}"));
         if !sel.round(round) {
@@ -192,6 +200,8 @@ pub fn diagnose_with(
     drop(sp);
     let sp = crate::timing::span("final model, SIM.toml law, findings");
     let crate::selection::Selection {
+        ctx: sel_ctx,
+        screen: sel_screen,
         mut cur,
         cur_cv,
         trials,
@@ -200,6 +210,23 @@ pub fn diagnose_with(
         noise,
         ..
     } = sel;
+    // When the selection moved to the folds that share the virgin rest, the base is held out
+    // on them too: the report's before and after, and the `unexplained` rule, compare like
+    // with like.
+    let moved = !std::ptr::eq(sel_ctx, &ctx);
+    let (ctx, screen) = (sel_ctx, sel_screen);
+    let base_cv = if !moved {
+        base_cv
+    } else {
+        let has_kappa = ds.kappa.is_some();
+        cross_validate(
+            ctx,
+            std::slice::from_ref(&base),
+            &crate::search::refit_params(&base, has_kappa),
+            ev_n,
+        )
+    };
+    let base_findings = locate(ctx, &base_cv.resid, &base_eval.pred);
     contributions.extend(fixed);
     // The search may leave the skew or a creep time constant beyond the bound where it stops
     // acting; report the value that acts.
@@ -211,19 +238,19 @@ pub fn diagnose_with(
     }
     cur.hysteresis = cur.hysteresis.map(|r| ctx.hyst_r(r));
     if cur.hyst_preisach {
-        let (h0, mu, sigma) = crate::model::preisach_acting(&ctx, &cur);
+        let (h0, mu, sigma) = crate::model::preisach_acting(ctx, &cur);
         cur.hysteresis = Some(h0);
         cur.preis_mu = mu;
         cur.preis_sigma = sigma;
     }
-    let final_eval = evaluate(&ctx, &cur, &|_| true);
+    let final_eval = evaluate(ctx, &cur, &|_| true);
     let s1 = crate::timing::span("  locate");
-    let final_findings = locate(&ctx, &cur_cv.resid, &final_eval.pred);
+    let final_findings = locate(ctx, &cur_cv.resid, &final_eval.pred);
     drop(s1);
     let s1 = crate::timing::span("  power summary");
-    let (sim_cfg, sim_theta) = crate::simlaw::power_summary(&ctx, &screen, &cur, &final_eval, ev_n);
+    let (sim_cfg, sim_theta) = crate::simlaw::power_summary(ctx, screen, &cur, &final_eval, ev_n);
     drop(s1);
-    let responsiveness = crate::locate::responsiveness(&ctx, &final_eval.pred);
+    let responsiveness = crate::locate::responsiveness(ctx, &final_eval.pred);
     let effects: Vec<NamedEffect> = cur
         .effects()
         .into_iter()
@@ -249,7 +276,7 @@ pub fn diagnose_with(
         })
         .collect();
     let unexplained = find_unexplained(
-        &ctx,
+        ctx,
         &base_cv,
         &cur_cv,
         &final_eval.pred,
@@ -294,7 +321,8 @@ pub fn diagnose_with(
         noise,
         load_scale: ctx.load_scale.clone(),
         responsiveness,
-        direction: crate::locate::direction(&ctx),
+        direction: crate::locate::direction(ctx),
+        virgin_rest_shared: moved,
         seconds: t0.elapsed().as_secs_f64(),
     }
 }

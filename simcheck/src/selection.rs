@@ -35,6 +35,11 @@ pub(crate) struct Selection<'a> {
     pub(crate) ctx: &'a Context<'a>,
     /// The screening view of the recording (see [`crate::screen`]).
     pub(crate) screen: &'a Context<'a>,
+    /// The same two views with the rest before the first press shared by both folds (see
+    /// [`Context::virgin_rest_shared`]): the selection moves to them, for good, once a model
+    /// that remembers the largest load (a set or a remnant) joins. None when the folds would not
+    /// change, or once moved.
+    pub(crate) shared: Option<(&'a Context<'a>, &'a Context<'a>)>,
     pub(crate) ev_n: usize,
     /// The start model's base configuration.
     pub(crate) cfg0: Config,
@@ -288,10 +293,11 @@ impl Selection<'_> {
         let before = self.cur_cv.clone();
         let names: Vec<&str> = effects.iter().map(|e| e.name()).collect();
         let _sp = crate::timing::span(format!("join {}", names.join(" + ")));
-        self.join(&cv.fits);
-        // The model without the effect that joined is the one before (not for two at once).
+        let moved = self.join(&cv.fits);
+        // The model without the effect that joined is the one before (not for two at once, nor
+        // once the folds have moved: it was held out on the others).
         self.last = match effects[..] {
-            [e] => Some((e, before)),
+            [e] if !moved => Some((e, before)),
             _ => None,
         };
         true
@@ -456,8 +462,10 @@ impl Selection<'_> {
 
     /// The accepted candidate joins: all parameters are refitted on the whole recording, from
     /// the better (on the whole recording) of the candidate's two training-fold fits, and the
-    /// refitted model is held out the way the next round's candidates will be.
-    fn join(&mut self, fold_fits: &[Config]) {
+    /// refitted model is held out the way the next round's candidates will be. When the model
+    /// now remembers the largest load, the selection first moves to the folds that share the
+    /// rest before the first press (see [`Context::virgin_rest_shared`]); true then.
+    fn join(&mut self, fold_fits: &[Config]) -> bool {
         let ctx = self.ctx;
         let has_kappa = ctx.ds.kappa.is_some();
         let added = fold_fits
@@ -492,16 +500,32 @@ impl Selection<'_> {
                 self.cur = alt;
             }
         }
+        let moved = self.cur.hyst_set || self.cur.hyst_remnant;
+        let moved = moved && self.move_folds();
         // The next round's candidates start from the jointly refitted model and refit all its
         // parameters per fold: the model they must beat is held out the same way. (Comparing
         // them with the accepted candidate's own cross-validation credited every one of them
         // with what the joint refit gained.)
         self.cur_cv = cross_validate(
-            ctx,
+            self.ctx,
             std::slice::from_ref(&self.cur),
             &refit_params(&self.cur, has_kappa),
             self.ev_n,
         );
+        moved
+    }
+
+    /// Moves the selection to the folds that share the rest before the first press, when
+    /// they differ from the current ones; true then. The effects' fits on the old training
+    /// halves are forgotten (each saw part of what a new fold holds out).
+    fn move_folds(&mut self) -> bool {
+        let Some((ctx, screen)) = self.shared.take() else {
+            return false;
+        };
+        self.ctx = ctx;
+        self.screen = screen;
+        self.last_fits.clear();
+        true
     }
 
     /// Backward pass: drops an effect the others made unnecessary, until every effect left

@@ -33,6 +33,13 @@ pub fn write_all(
     let mut files = Vec::new();
     let (model, mut notes) = extended_model(start, ds, d);
     notes.extend(notes_in.iter().cloned());
+    if d.virgin_rest_shared {
+        notes.push(
+            "held out on folds that share the rest before the first press (a model that \
+             remembers the largest load joined): the base's held-out error too"
+                .into(),
+        );
+    }
     files.push(write_sim_toml(dir, ds, d, &model)?);
     // The latent temperature, when thermal drift was inferred without a column.
     let latent_temp: Option<Vec<f64>> = d
@@ -126,6 +133,7 @@ fn report_json(
         "findings_final": d.final_findings,
         "resim_rmse_taxel_sim": resim_rmse,
         "notes": notes,
+        "virgin_rest_in_both_folds": d.virgin_rest_shared,
         "figures": figures,
         "seconds": d.seconds,
     })
