@@ -158,14 +158,13 @@ pub fn diagnose_with(
     let mut noise = NoiseModel::estimate(&ctx, &start_cv.resid);
     noise.wander = wander;
     let screen = ctx.coarser(crate::screen::FACTOR);
-    let shared_ctx = ctx.virgin_rest_shared();
-    let shared_screen = shared_ctx
-        .as_ref()
-        .map(|c| c.coarser(crate::screen::FACTOR));
+    // Built only if the selection moves to them (two more copies of the recording's views).
+    let shared = std::cell::OnceCell::new();
     let mut sel = crate::selection::Selection {
         ctx: &ctx,
         screen: &screen,
-        shared: shared_ctx.as_ref().zip(shared_screen.as_ref()),
+        shared: &shared,
+        moved: false,
         ev_n,
         cfg0,
         cur: start_fit,
@@ -208,12 +207,12 @@ pub fn diagnose_with(
         backward,
         fixed,
         noise,
+        moved,
         ..
     } = sel;
     // When the selection moved to the folds that share the virgin rest, the base is held out
     // on them too: the report's before and after, and the `unexplained` rule, compare like
     // with like.
-    let moved = !std::ptr::eq(sel_ctx, &ctx);
     let (ctx, screen) = (sel_ctx, sel_screen);
     let base_cv = if !moved {
         base_cv

@@ -36,10 +36,12 @@ pub(crate) struct Selection<'a> {
     /// The screening view of the recording (see [`crate::screen`]).
     pub(crate) screen: &'a Context<'a>,
     /// The same two views with the rest before the first press shared by both folds (see
-    /// [`Context::virgin_rest_shared`]): the selection moves to them, for good, once a model
-    /// that remembers the largest load (a set or a remnant) joins. None when the folds would not
-    /// change, or once moved.
-    pub(crate) shared: Option<(&'a Context<'a>, &'a Context<'a>)>,
+    /// [`Context::virgin_rest_shared`]), built when first needed (None inside when the folds
+    /// would not change): the selection moves to them, for good, once a model that remembers
+    /// the largest load (a set or a remnant) joins.
+    pub(crate) shared: &'a std::cell::OnceCell<Option<(Context<'a>, Context<'a>)>>,
+    /// Whether the selection has moved to the shared views.
+    pub(crate) moved: bool,
     pub(crate) ev_n: usize,
     /// The start model's base configuration.
     pub(crate) cfg0: Config,
@@ -519,11 +521,21 @@ impl Selection<'_> {
     /// they differ from the current ones; true then. The effects' fits on the old training
     /// halves are forgotten (each saw part of what a new fold holds out).
     fn move_folds(&mut self) -> bool {
-        let Some((ctx, screen)) = self.shared.take() else {
+        if self.moved {
+            return false;
+        }
+        let ctx = self.ctx;
+        let shared = self.shared.get_or_init(|| {
+            let full = ctx.virgin_rest_shared()?;
+            let screen = full.coarser(crate::screen::FACTOR);
+            Some((full, screen))
+        });
+        let Some((full, screen)) = shared else {
             return false;
         };
-        self.ctx = ctx;
+        self.ctx = full;
         self.screen = screen;
+        self.moved = true;
         self.last_fits.clear();
         true
     }
