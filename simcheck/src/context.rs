@@ -190,9 +190,9 @@ impl<'a> Context<'a> {
     /// [`crate::set`]) needs it: a first press that sets the sensor for good leaves the rest
     /// before it unseen by the fold whose training blocks all come after it, and that fold's
     /// prediction of the virgin rest is an extrapolation (on world B's creep + hysteresis case
-    /// it held 60 % of the held-out SSE, and left node 10 `unexplained`). The diagnosis moves to these
-    /// folds only once such a model has joined (see `Selection::join`): every recording
-    /// without one keeps the folds it always had.
+    /// it held 60 % of the held-out SSE, and left node 10 `unexplained`). The diagnosis moves
+    /// to these folds only once such a model has joined (see `Selection::join`): every
+    /// recording without one keeps the folds it always had.
     pub fn virgin_rest_shared(&self) -> Option<Context<'a>> {
         let ds = self.ds;
         let first_press = ds.force.iter().position(|&f| f > 0.02 * ds.max_force())?;

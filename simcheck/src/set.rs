@@ -80,8 +80,9 @@ pub fn ramps(force: &[f64], levels: &[f64]) -> Vec<Vec<f64>> {
 /// 2 % of the peak force, each one's level the median of its second half per node, where a
 /// press's recovery has mostly settled), the level must move more across every press that
 /// reaches a new peak (passing the largest press before it by the step of [`levels`]) than
-/// across any other press (the size of a move: its sum of squares over nodes). A drift moves the rest level across every press
-/// alike, and so does a creep's slow recovery after a large press; a set only at new peaks.
+/// across any other press (the size of a move: its sum of squares over nodes). A drift moves
+/// the rest level across every press alike, and so does a creep's slow recovery after a large
+/// press; a set only at new peaks.
 /// False when there is no press of either kind to compare.
 pub fn shows_set(ds: &Dataset, deadband: f64, before: &Cv) -> bool {
     let (len, n) = (ds.len(), ds.n);

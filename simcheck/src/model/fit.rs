@@ -434,10 +434,10 @@ impl NodeFit<'_> {
 
 /// Adds one weighted observation `z` with regressors `xrow` to the lower triangle of the
 /// normal equations `a` and to `b`.
-/// Adds the ridge of [`super::REMNANT_RIDGE`] (a share of the intercept's weight, `a[0]`) to
+/// Adds the ridge of [`super::SET_RIDGE`] (a share of the intercept's weight, `a[0]`) to
 /// the diagonal of the normal equations `a` (`pdim` x `pdim`) at the amplitudes `range`.
 fn ridge(a: &mut [f64], pdim: usize, range: std::ops::Range<usize>) {
-    let lam = super::REMNANT_RIDGE * a[0];
+    let lam = super::SET_RIDGE * a[0];
     for u in range {
         a[u * pdim + u] += lam;
     }

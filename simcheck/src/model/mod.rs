@@ -339,10 +339,10 @@ fn predict(
 /// arbitrary amplitude on them that the held-out span pays for in full (hundreds of counts on
 /// world B's mm_creep_hysteresis, with the remnant's ramps). The ridge makes such a direction
 /// take the smallest amplitudes that fit (no set where none was seen); it shrinks a ramp the
-/// data support by about `REMNANT_RIDGE` over the share of the samples that support it, so a
+/// data support by about `SET_RIDGE` over the share of the samples that support it, so a
 /// resolution only. The remnant's own ramps ([`Config::hyst_remnant`]) are not ridged: that
 /// moved zoo-hys's loop on training seed 2 enough for creep to be named beside it.
-pub const REMNANT_RIDGE: f64 = 1e-3;
+pub const SET_RIDGE: f64 = 1e-3;
 
 /// Where each per-node linear parameter sits in `theta`: the intercept, the curvature-baseline
 /// slope (on the curvature, or on the trial's no-load shift), the hysteresis amplitude, and
@@ -355,7 +355,7 @@ pub struct Layout {
     /// remnant, its ramps too).
     pub hyst: usize,
     /// How many of the last `hyst` regressors are a set's ramps (ridged, see
-    /// [`REMNANT_RIDGE`]).
+    /// [`SET_RIDGE`]).
     pub ridged: usize,
     /// The static law's parameters per node.
     pub law: usize,
