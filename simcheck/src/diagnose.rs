@@ -225,7 +225,6 @@ pub fn diagnose_with(
             ev_n,
         )
     };
-    let base_findings = locate(ctx, &base_cv.resid, &base_eval.pred);
     contributions.extend(fixed);
     // The search may leave the skew or a creep time constant beyond the bound where it stops
     // acting; report the value that acts.
@@ -243,8 +242,13 @@ pub fn diagnose_with(
         cur.preis_sigma = sigma;
     }
     let final_eval = evaluate(ctx, &cur, &|_| true);
+    // The base's findings and the final model's, side by side (each on its own thread when
+    // free; neither depends on the other).
     let s1 = crate::timing::span("  locate");
-    let final_findings = locate(ctx, &cur_cv.resid, &final_eval.pred);
+    let (base_findings, final_findings) = crate::parallel::join(
+        || locate(ctx, &base_cv.resid, &base_eval.pred),
+        || locate(ctx, &cur_cv.resid, &final_eval.pred),
+    );
     drop(s1);
     let s1 = crate::timing::span("  power summary");
     let (sim_cfg, sim_theta) = crate::simlaw::power_summary(ctx, screen, &cur, &final_eval, ev_n);

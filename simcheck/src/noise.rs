@@ -206,16 +206,15 @@ impl NoiseModel {
         } else {
             1.0
         };
-        let nodes: Vec<Parts> = (0..n)
-            .map(|k| {
-                let x: Vec<f64> = (0..len)
-                    .map(|i| resid[i * n + k] - if n > 1 { mean[i] } else { 0.0 })
-                    .collect();
-                let keep: Vec<bool> = (0..len).map(|i| rest[i] && ctx.usable[i * n + k]).collect();
-                let g: Vec<f64> = autocov(&x, &keep, &lags).iter().map(|v| v * undo).collect();
-                parts(&g, big)
-            })
-            .collect();
+        // Each node's parts on their own (on two threads when free), in node order.
+        let nodes: Vec<Parts> = crate::parallel::map(n, |k| {
+            let x: Vec<f64> = (0..len)
+                .map(|i| resid[i * n + k] - if n > 1 { mean[i] } else { 0.0 })
+                .collect();
+            let keep: Vec<bool> = (0..len).map(|i| rest[i] && ctx.usable[i * n + k]).collect();
+            let g: Vec<f64> = autocov(&x, &keep, &lags).iter().map(|v| v * undo).collect();
+            parts(&g, big)
+        });
         let nodes = capped(nodes);
         let common = Parts::default();
         let rho = nodes.iter().map(|p| p.rho_slow).sum::<f64>() / n.max(1) as f64;
