@@ -219,8 +219,9 @@ impl NoiseModel {
         let common = Parts::default();
         let rho = nodes.iter().map(|p| p.rho_slow).sum::<f64>() / n.max(1) as f64;
         let own = nodes.iter().map(Parts::total).sum::<f64>() / n.max(1) as f64;
+        let slow = nodes.iter().map(|p| p.slow + p.fast).sum::<f64>() / n.max(1) as f64;
         NoiseModel {
-            wander: CommonWander::estimate(ctx, resid, own),
+            wander: CommonWander::estimate(ctx, resid, own, slow),
             wander_tau_s: if rho > 0.0 && rho < 1.0 {
                 -ds.dt() / rho.ln()
             } else {
