@@ -72,12 +72,12 @@ pub const MIN_TAU_S: f64 = 8.0;
 
 /// How many times what the nodes' own slow noise puts in the wander's observations (see
 /// [`CommonWander::leak_variance`]) a wander's variance must be to be taken out. Set on training
-/// seeds 2 and 3 (the line's observations, read at exposure 0 in that draft): the zoo's true common wanders (zoo-sat,
-/// zoo-amp) read 8-220 times it, except zoo-amp's unlabelled curvature on seed 3 (4.0); the
-/// families without one read 0.2-0.3 (the reference world, variances of 0.01) and zoo-hys
-/// 0.7-2.0 on its null, distractor, creep, hysteresis and broken-thread cases (its nodes' own
-/// wanders, 2 counts over 25 s, and its creep's recovery), 3-7 where a thermal drift's rest share
-/// or a mounting's is in the observations.
+/// seeds 2 and 3 (the line's observations, read at exposure 0 in that draft): the zoo's true
+/// common wanders (zoo-sat, zoo-amp) read 8-220 times it, except zoo-amp's unlabelled curvature
+/// on seed 3 (4.0); the families without one read 0.2-0.3 (the reference world, variances of
+/// 0.01) and zoo-hys 0.7-2.0 on its null, distractor, creep, hysteresis and broken-thread cases
+/// (its nodes' own wanders, 2 counts over 25 s, and its creep's recovery), 3-7 where a thermal
+/// drift's rest share or a mounting's is in the observations.
 pub const LEAK_FACTOR: f64 = 3.0;
 
 /// Least difference of two nodes' exposures (of the largest) for their pair to give the line a
