@@ -184,8 +184,11 @@ impl CommonWander {
         }
         // Then how much of it is a wander: the line through the nodes' exposures.
         let (obs, r) = w.observations(ctx, resid, true);
-        let seen: Vec<f64> = r.iter().copied().filter(|v| v.is_finite()).collect();
-        let mean_r = seen.iter().sum::<f64>() / seen.len().max(1) as f64;
+        let (sum_r, seen) = r
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold((0.0, 0usize), |(s, c), v| (s + v, c + 1));
+        let mean_r = sum_r / seen.max(1) as f64;
         w.leak_variance = mean_r * (own_slow / own_variance).clamp(0.0, 1.0);
         let (var, tau) = max_likelihood(&ds.t, &obs, &r, r0, ds.duration());
         (w.line_ml_variance, w.line_ml_tau_s) = (var, tau);
@@ -223,6 +226,7 @@ impl CommonWander {
             .filter(|&(a, b)| (e[b] - e[a]).abs() > MIN_EXPOSURE_GAP)
             .collect();
         let (mut slopes, mut row) = (Vec::with_capacity(pairs.len()), Vec::with_capacity(n));
+        let mut used = Vec::with_capacity(n);
         for i in 0..len {
             if !self.quiet(i) {
                 continue;
@@ -241,7 +245,8 @@ impl CommonWander {
             } else {
                 median_of(&mut slopes)
             };
-            let used: Vec<usize> = (0..n).filter(|&k| ok(k)).collect();
+            used.clear();
+            used.extend((0..n).filter(|&k| ok(k)));
             if used.is_empty() {
                 continue;
             }
@@ -529,22 +534,28 @@ mod tests {
         assert_eq!(cw.taken_out.len(), len);
     }
 
-    #[test]
-    fn a_fast_common_process_at_rest_is_not_taken_for_a_wander() {
-        // A common AR(1) process of sd 5 with a 0.3 s correlation: found, but too fast to be a
-        // slow reference drifting, so nothing is taken out.
+    /// A common AR(1) process of standard deviation `sd` and correlation time `tau_s` (from 0)
+    /// plus white noise of sd 1 on each of four nodes, drawn from stream `seed` (sample-major).
+    fn common_on_four(seed: u64, sd: f64, tau_s: f64) -> Vec<f64> {
         let len = four_nodes(&[]).t.len();
-        let mut rng = Rng::new(7, 1);
-        let rho = (-0.01f64 / 0.3).exp();
+        let mut rng = Rng::new(seed, 1);
+        let rho = (-0.01f64 / tau_s).exp();
         let mut w = 0.0;
         let mut extra = Vec::with_capacity(len * 4);
         for _ in 0..len {
-            w = rho * w + 5.0 * (1.0 - rho * rho).sqrt() * rng.normal();
+            w = rho * w + sd * (1.0 - rho * rho).sqrt() * rng.normal();
             for _ in 0..4 {
                 extra.push(w + rng.normal());
             }
         }
-        let ds = four_nodes(&extra);
+        extra
+    }
+
+    #[test]
+    fn a_fast_common_process_at_rest_is_not_taken_for_a_wander() {
+        // A common AR(1) process of sd 5 with a 0.3 s correlation: found, but too fast to be a
+        // slow reference drifting, so nothing is taken out.
+        let ds = four_nodes(&common_on_four(7, 5.0, 0.3));
         let ctx = Context::new(&ds);
         let resid: Vec<f64> = ds.y.iter().map(|y| 100.0 - y).collect();
         let mut cw = CommonWander::estimate(&ctx, &resid, 1.0, 0.0);
@@ -680,18 +691,7 @@ mod tests {
         // A small common wander (sd 0.8, 20 s) on four nodes with white noise of sd 1: taken
         // out when the nodes' own noise is white, refused when it is all slow (each node's own
         // wander then puts about as much in the observations as this one).
-        let len = four_nodes(&[]).t.len();
-        let mut rng = Rng::new(5, 1);
-        let rho = (-0.01f64 / 20.0).exp();
-        let mut w = 0.0;
-        let mut extra = Vec::with_capacity(len * 4);
-        for _ in 0..len {
-            w = rho * w + 0.8 * (1.0 - rho * rho).sqrt() * rng.normal();
-            for _ in 0..4 {
-                extra.push(w + rng.normal());
-            }
-        }
-        let ds = four_nodes(&extra);
+        let ds = four_nodes(&common_on_four(5, 0.8, 20.0));
         let ctx = Context::new(&ds);
         let resid: Vec<f64> = ds.y.iter().map(|y| 100.0 - y).collect();
         let white = CommonWander::estimate(&ctx, &resid, 1.0, 0.0);
