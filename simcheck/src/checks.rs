@@ -14,7 +14,7 @@ use crate::noise::NoiseModel;
 /// within them ([`within_trial_beta`]); thermal drift must act as a gain ([`gain_betas`]);
 /// hysteresis must be a loop and rate-independent, or, as a set alone (`form`, the
 /// candidate's configuration), move the level at rest at new peaks only
-/// ([`crate::set::shows_set`]).
+/// ([`crate::set::shows_set`]); creep must act under held loads ([`crate::hold`]).
 pub fn signature_check(
     ds: &Dataset,
     noise: &NoiseModel,
@@ -70,6 +70,9 @@ pub fn signature_check(
                 v.keep = false;
             }
         }
+    }
+    if e == EffectKind::Creep {
+        crate::hold::hold_check(ds, before, after, v);
     }
     // A set alone must move the level at rest across the presses to a new peak only (a loop
     // added on top of a set is judged as a loop).

@@ -168,6 +168,11 @@ pub struct Verdict {
     /// Latent thermal drift with trials only: how much of the residual within the trials its
     /// change carries (see `checks::within_trial_beta`).
     pub within_trial_beta: Option<f64>,
+    /// Creep only: the share of what the residual does about its level under held loads that
+    /// the change takes out, and the t statistic of its falls over the holds (see
+    /// `checks::hold_gain`).
+    pub hold_share: Option<f64>,
+    pub hold_t: Option<f64>,
     /// The per-block gains measured against the size of the change in each block (see
     /// [`change_weighted_t`]).
     pub weighted_t: f64,
@@ -305,6 +310,8 @@ pub fn compare(
         gain_betas: None,
         gain_rest_se: None,
         within_trial_beta: None,
+        hold_share: None,
+        hold_t: None,
         weighted_t,
         change_blocks,
     }

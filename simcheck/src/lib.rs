@@ -25,6 +25,7 @@ pub mod data;
 pub mod diagnose;
 pub mod effects;
 pub mod forms;
+pub mod hold;
 mod joint;
 pub mod law;
 pub mod locate;
