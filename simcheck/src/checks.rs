@@ -425,17 +425,7 @@ mod tests {
     use crate::testdata::presses;
 
     fn cv(resid: Vec<f64>) -> Cv {
-        let sse = resid.iter().map(|r| r * r).sum();
-        Cv {
-            count: resid.len(),
-            block_sse: vec![sse],
-            node_sse: vec![sse],
-            rest_block_sse: vec![0.0],
-            resid,
-            sse,
-            fits: [Config::base(1.0, 0.0), Config::base(1.0, 0.0)],
-            colour: std::sync::OnceLock::new(),
-        }
+        crate::testdata::cv_of(resid)
     }
 
     fn slope(ds: &Dataset) -> Vec<f64> {

@@ -91,21 +91,10 @@ pub fn hold_gain(ds: &Dataset, before: &Cv, after: &Cv) -> (f64, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::effects::Config;
     use crate::testdata::presses;
 
     fn cv(resid: Vec<f64>) -> Cv {
-        let sse = resid.iter().map(|r| r * r).sum();
-        Cv {
-            count: resid.len(),
-            block_sse: vec![sse],
-            node_sse: vec![sse],
-            rest_block_sse: vec![0.0],
-            resid,
-            sse,
-            fits: [Config::base(1.0, 0.0), Config::base(1.0, 0.0)],
-            colour: std::sync::OnceLock::new(),
-        }
+        crate::testdata::cv_of(resid)
     }
 
     /// One node, twelve presses each held for 4 s (levels 3-14 N, 0.5 s ramps, 2 s of rest

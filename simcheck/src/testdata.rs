@@ -57,3 +57,21 @@ pub fn presses_with_rest(rest_s: f64) -> Dataset {
         stats: Default::default(),
     }
 }
+
+/// A held-out result whose residual is `resid` (one block, one node; the fits are placeholders).
+pub fn cv_of(resid: Vec<f64>) -> crate::cv::Cv {
+    let sse = resid.iter().map(|r| r * r).sum();
+    crate::cv::Cv {
+        count: resid.len(),
+        block_sse: vec![sse],
+        node_sse: vec![sse],
+        rest_block_sse: vec![0.0],
+        resid,
+        sse,
+        fits: [
+            crate::effects::Config::base(1.0, 0.0),
+            crate::effects::Config::base(1.0, 0.0),
+        ],
+        colour: std::sync::OnceLock::new(),
+    }
+}
