@@ -58,6 +58,17 @@ impl ReadoutMap {
         }
     }
 
+    /// The converter's width in bits (`None` for a resistance readout): the recording's, which
+    /// may be wider than the start model's (see `Dataset::from_recording`).
+    pub fn adc_bits(&self) -> Option<u32> {
+        match *self {
+            ReadoutMap::Amplifier { max, .. } | ReadoutMap::Divider { max, .. } => {
+                Some((max + 1.0).log2().round() as u32)
+            }
+            ReadoutMap::Resistance => None,
+        }
+    }
+
     /// Whether the reading rises with conductance (with force).
     pub fn rises(&self) -> bool {
         match *self {

@@ -24,6 +24,11 @@ pub fn extended_model(
     m.readout.kind = ds.map.kind();
     m.readout.inverted = matches!(ds.map, ReadoutMap::Amplifier { inverted: true, .. });
     m.readout.divider_rises = matches!(ds.map, ReadoutMap::Divider { rises: true, .. });
+    // The converter as the recording was read: readings beyond the start model's range widen
+    // it (a 12-bit board read with a 10-bit model), and taxel-sim must write the same codes.
+    if let Some(bits) = ds.map.adc_bits() {
+        m.readout.adc_bits = bits;
+    }
     base_law(&mut m, ds, cfg, &d.sim_theta, &d.load_scale);
     curvature(&mut m, ds, cfg, &d.sim_theta, &mut notes);
     m.creep = cfg.creep.as_ref().map(|terms| Creep {
