@@ -170,7 +170,7 @@ pub struct Verdict {
     pub within_trial_beta: Option<f64>,
     /// Creep only: the share of what the residual does about its level under held loads that
     /// the change takes out, and the t statistic of its falls over the holds (see
-    /// `checks::hold_gain`).
+    /// `hold::hold_gain`).
     pub hold_share: Option<f64>,
     pub hold_t: Option<f64>,
     /// The per-block gains measured against the size of the change in each block (see
