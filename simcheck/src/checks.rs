@@ -143,6 +143,18 @@ pub fn loop_removed_share(ds: &Dataset, before: &Cv, after: &Cv) -> f64 {
     }
 }
 
+/// The force's rate of change at sample `i` (N/s), over `half` samples either side (fewer at
+/// the recording's ends); 0 where those samples share a time.
+pub(crate) fn force_rate(ds: &Dataset, i: usize, half: usize) -> f64 {
+    let (a, b) = (i.saturating_sub(half), (i + half).min(ds.len() - 1));
+    let span = ds.t[b] - ds.t[a];
+    if span > 0.0 {
+        (ds.force[b] - ds.force[a]) / span
+    } else {
+        0.0
+    }
+}
+
 /// The loop and level parts of `x` (per node-sample): on moving samples (faster than 5 % of
 /// the peak force per second) binned by force (8 bins up to the peak), the mean of `x` on
 /// loading and on unloading; the loop part is half their difference, the level part their
@@ -155,13 +167,7 @@ fn loop_and_level(ds: &Dataset, x: &dyn Fn(usize) -> f64) -> (f64, f64) {
     // Per bin and direction: sum of x over nodes and samples, and count.
     let mut acc = [[(0.0f64, 0usize); 2]; BINS];
     for i in 0..len {
-        let (a, b) = (i.saturating_sub(2), (i + 2).min(len - 1));
-        let span = ds.t[b] - ds.t[a];
-        let rate = if span > 0.0 {
-            (ds.force[b] - ds.force[a]) / span
-        } else {
-            0.0
-        };
+        let rate = force_rate(ds, i, 2);
         // Moving: faster than 5 % of the peak force per second (as `ramp_betas`).
         if rate.abs() <= 0.05 * fmax {
             continue;
@@ -200,17 +206,7 @@ pub fn ramp_betas(ds: &Dataset, before: &Cv, after: &Cv) -> [f64; 2] {
     const BINS: usize = 8;
     let (len, n) = (ds.len(), ds.n);
     let fmax = ds.max_force().max(1e-12);
-    let rate: Vec<f64> = (0..len)
-        .map(|i| {
-            let (a, b) = (i.saturating_sub(2), (i + 2).min(len - 1));
-            let span = ds.t[b] - ds.t[a];
-            if span > 0.0 {
-                ((ds.force[b] - ds.force[a]) / span).abs()
-            } else {
-                0.0
-            }
-        })
-        .collect();
+    let rate: Vec<f64> = (0..len).map(|i| force_rate(ds, i, 2).abs()).collect();
     let bin = |f: f64| ((f.max(0.0) / fmax * BINS as f64) as usize).min(BINS - 1);
     let mut by_bin: Vec<Vec<f64>> = vec![Vec::new(); BINS];
     for (i, &ri) in rate.iter().enumerate() {

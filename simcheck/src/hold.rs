@@ -49,14 +49,7 @@ pub fn hold_gain(ds: &Dataset, before: &Cv, after: &Cv) -> (f64, f64) {
     let w = ((0.25 / ds.dt().max(1e-9)).round() as usize).max(2);
     let held: Vec<bool> = (0..len)
         .map(|i| {
-            let (a, b) = (i.saturating_sub(w), (i + w).min(len - 1));
-            let span = ds.t[b] - ds.t[a];
-            let rate = if span > 0.0 {
-                (ds.force[b] - ds.force[a]) / span
-            } else {
-                0.0
-            };
-            ds.force[i] > 0.2 * fmax && rate.abs() <= 0.05 * fmax
+            ds.force[i] > 0.2 * fmax && crate::checks::force_rate(ds, i, w).abs() <= 0.05 * fmax
         })
         .collect();
     // Each node's SSE about its own mean over samples `span`.
