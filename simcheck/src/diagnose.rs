@@ -101,6 +101,9 @@ pub struct Diagnosis {
     /// share the rest before the first press: a model that remembers the largest load joined
     /// (see [`Context::virgin_rest_shared`]).
     pub virgin_rest_shared: bool,
+    /// Whether the nodes the `unexplained` rule named were checked on other folds too, ones
+    /// that train on the largest loads (see [`Context::peak_shared`]).
+    pub unexplained_on_peak_folds: bool,
     pub seconds: f64,
 }
 /// Where a diagnosis is, for a progress display: a stage and a step of it.
@@ -287,6 +290,33 @@ pub fn diagnose_with(
         &noise,
         opts.unexplained_ratio,
     );
+    // Structure that only one way of splitting the recording shows is the split's, not the
+    // sensor's: when the selection's folds leave one under a share of the peak load, a node
+    // stays `unexplained` only if folds that share the peak show it too.
+    let peak = if unexplained.is_empty() {
+        None
+    } else {
+        peak_folds(ctx, moved, &base, &cur, ev_n)
+    };
+    let unexplained = match &peak {
+        None => unexplained,
+        Some((pc, b, c)) => {
+            let again = find_unexplained(
+                pc,
+                b,
+                c,
+                &final_eval.pred,
+                &final_findings,
+                &noise,
+                opts.unexplained_ratio,
+            );
+            let shown = |k: &usize| again.iter().any(|u| u.nodes.contains(k));
+            unexplained
+                .into_iter()
+                .filter(|u| u.nodes.iter().all(shown))
+                .collect()
+        }
+    };
     drop(sp);
     drop(whole);
     let verdict = if !unexplained.is_empty() {
@@ -326,6 +356,7 @@ pub fn diagnose_with(
         responsiveness,
         direction: crate::locate::direction(ctx),
         virgin_rest_shared: moved,
+        unexplained_on_peak_folds: peak.is_some(),
         seconds: t0.elapsed().as_secs_f64(),
     }
 }
@@ -387,4 +418,31 @@ fn start_config(ctx: &Context, start: &SensorModel) -> Config {
         start.material.r_floor_ohm
     };
     Config::base(start.material.exponent, floor)
+}
+
+/// When the selection's folds leave one of them under [`crate::context::FOLD_PEAK_SHARE`] of
+/// the peak load: folds that share it (see [`Context::peak_shared`]; also sharing the rest
+/// before the first press when the selection `moved` to such folds), with the base and the
+/// final model held out on them, every parameter refitted per fold as in the selection, for
+/// the `unexplained` rule's second look. None otherwise.
+fn peak_folds<'a>(
+    ctx: &Context<'a>,
+    moved: bool,
+    base: &Config,
+    cur: &Config,
+    ev_n: usize,
+) -> Option<(Context<'a>, Cv, Cv)> {
+    let pc = ctx.peak_shared()?;
+    let pc = if moved {
+        pc.virgin_rest_shared().unwrap_or(pc)
+    } else {
+        pc
+    };
+    let has_kappa = pc.ds.kappa.is_some();
+    let held_out = |c: &Config| {
+        let params = crate::search::refit_params(c, has_kappa);
+        cross_validate(&pc, std::slice::from_ref(c), &params, ev_n)
+    };
+    let (b, c) = (held_out(base), held_out(cur));
+    Some((pc, b, c))
 }

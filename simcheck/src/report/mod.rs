@@ -40,6 +40,14 @@ pub fn write_all(
                 .into(),
         );
     }
+    if d.unexplained_on_peak_folds {
+        notes.push(
+            "the selection's folds left one under 90 % of the peak load: each node named \
+             `unexplained` was checked on folds that share the peak too, and kept only if \
+             they show it"
+                .into(),
+        );
+    }
     files.push(write_sim_toml(dir, ds, d, &model)?);
     // The latent temperature, when thermal drift was inferred without a column.
     let latent_temp: Option<Vec<f64>> = d
@@ -134,6 +142,7 @@ fn report_json(
         "resim_rmse_taxel_sim": resim_rmse,
         "notes": notes,
         "virgin_rest_in_both_folds": d.virgin_rest_shared,
+        "unexplained_on_peak_folds": d.unexplained_on_peak_folds,
         "figures": figures,
         "seconds": d.seconds,
     })
