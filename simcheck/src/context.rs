@@ -217,8 +217,8 @@ impl<'a> Context<'a> {
     ///
     /// A held-out prediction above every load its fold trained on extrapolates each node's
     /// law, and a convex law extrapolated looks like a broken node: on zoo-hys seed 249 the odd
-    /// fold never trained above 89 % of the peak, and node 12 was named `unexplained` in the
-    /// null, distractor and recorded-drift cases (node 10 in the loop's). A node the
+    /// fold never trained above 89 % of the peak, and node 10 was named `unexplained` in the
+    /// loop's case. A node the
     /// `unexplained` rule names must show on these folds too (see `diagnose`); the selection
     /// keeps its own (moving them for the whole selection named false drifts on zoo-hys seeds
     /// 228 and 236).
