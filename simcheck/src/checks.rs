@@ -276,23 +276,21 @@ pub fn gain_betas(ds: &Dataset, noise: &NoiseModel, before: &Cv, after: &Cv) -> 
     let fmax = ds.max_force().max(1e-12);
     let dom: Vec<f64> = ds.y.iter().map(|&y| ds.map.dom(y)).collect();
     let rest: Vec<bool> = ds.force.iter().map(|&f| f <= 0.02 * fmax).collect();
-    let level: Vec<f64> = (0..n)
-        .map(|k| {
-            let mut v: Vec<f64> = (0..len)
-                .filter(|&i| rest[i])
-                .map(|i| dom[i * n + k])
-                .collect();
-            v.sort_by(f64::total_cmp);
-            v.get(v.len() / 2).copied().unwrap_or(0.0)
-        })
-        .collect();
+    let level: Vec<f64> = crate::parallel::map(n, |k| {
+        let mut v: Vec<f64> = (0..len)
+            .filter(|&i| rest[i])
+            .map(|i| dom[i * n + k])
+            .collect();
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    });
     let mut far: Vec<(f64, usize)> = Vec::new();
     for i in (0..len).filter(|&i| ds.force[i] >= 0.25 * fmax) {
         for (k, lk) in level.iter().enumerate() {
             far.push(((dom[i * n + k] - lk).abs(), i * n + k));
         }
     }
-    far.sort_by(|a, b| b.0.total_cmp(&a.0));
+    crate::parallel::sort_by(&mut far, |a, b| b.0.total_cmp(&a.0));
     far.truncate(far.len() / 2);
     let recorded = |j: usize| resid_as_recorded(noise, before, j, n);
     let beta = |idx: &mut dyn Iterator<Item = usize>| -> (f64, f64) {

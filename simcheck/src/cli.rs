@@ -140,14 +140,18 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<()> {
             given = ReadoutGiven::Kind;
         }
     }
+    let sp = crate::timing::span("read recording");
     let (ds, note) = Dataset::load(&a.recording, a.rows, a.cols, &start.readout, given)?;
+    drop(sp);
     let notes: Vec<String> = note.into_iter().collect();
     for n in &notes {
         eprintln!("taxel-simcheck: {n}");
     }
     let d = diagnose_with(&ds, &start, &Options::default(), &progress_bar());
     clear_progress();
+    let sp = crate::timing::span("write report and figures");
     crate::report::write_all(&a.out, &ds, &start, &d, &notes)?;
+    drop(sp);
     if a.json {
         let text = std::fs::read_to_string(a.out.join("report.json"))?;
         say(&text)?;

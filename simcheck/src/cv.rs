@@ -66,7 +66,6 @@ pub fn cross_validate_from(
     let ds = ctx.ds;
     let n = ds.n;
     let mut resid = vec![0.0; ds.len() * n];
-    let mut fits = Vec::with_capacity(2);
     let fold = |f: usize| -> (Config, Eval) {
         let train = |i: usize| ctx.fold(i) != f;
         let cfg = fit(ctx, starts[f], params, &train, max_evals);
@@ -75,43 +74,52 @@ pub fn cross_validate_from(
     };
     let (a, b) = crate::parallel::join(|| fold(0), || fold(1));
     let folds = [a, b];
-    for (f, (cfg, ev)) in folds.into_iter().enumerate() {
-        for i in 0..ds.len() {
-            if ctx.fold(i) == f {
-                for k in 0..n {
-                    let idx = i * n + k;
-                    if ctx.usable[idx] {
-                        resid[idx] = ev.pred[idx] - ctx.dom_obs[idx];
-                    }
+    // Each sample's residual from the fold that held it out (chunks of samples side by side).
+    const CHUNK: usize = 4096;
+    crate::parallel::chunks_mut(&mut resid, CHUNK * n, |c, out| {
+        for (s, row) in out.chunks_mut(n.max(1)).enumerate() {
+            let i = c * CHUNK + s;
+            let ev = &folds[ctx.fold(i)].1;
+            for (k, r) in row.iter_mut().enumerate() {
+                let idx = i * n + k;
+                if ctx.usable[idx] {
+                    *r = ev.pred[idx] - ctx.dom_obs[idx];
                 }
             }
         }
-        fits.push(cfg);
-    }
-    let mut block_sse = vec![0.0; ctx.n_blocks];
-    let mut node_sse = vec![0.0; n];
-    let mut rest_block_sse = vec![0.0; ctx.n_blocks];
+    });
+    // The sums per block and per node, each over its samples in time order (blocks side by
+    // side, then nodes side by side): the same sums, in the same order, as one pass would make.
     let rest_limit = 0.02 * ds.max_force();
-    let mut count = 0;
-    for i in 0..ds.len() {
-        for (k, node) in node_sse.iter_mut().enumerate() {
-            let idx = i * n + k;
-            if ctx.usable[idx] {
-                let r2 = resid[idx] * resid[idx];
-                block_sse[ctx.block[i]] += r2;
-                *node += r2;
-                if ds.force[i] <= rest_limit {
-                    rest_block_sse[ctx.block[i]] += r2;
+    let runs = block_runs(&ctx.block, ctx.n_blocks);
+    let per_block = crate::parallel::map(ctx.n_blocks, |b| {
+        let (mut sse, mut rest, mut count) = (0.0, 0.0, 0usize);
+        for i in runs[b].iter().flat_map(|r| r.clone()) {
+            for k in 0..n {
+                let idx = i * n + k;
+                if ctx.usable[idx] {
+                    let r2 = resid[idx] * resid[idx];
+                    sse += r2;
+                    if ds.force[i] <= rest_limit {
+                        rest += r2;
+                    }
+                    count += 1;
                 }
-                count += 1;
             }
         }
-    }
+        (sse, rest, count)
+    });
+    let block_sse: Vec<f64> = per_block.iter().map(|v| v.0).collect();
+    let rest_block_sse: Vec<f64> = per_block.iter().map(|v| v.1).collect();
+    let count = per_block.iter().map(|v| v.2).sum();
+    let node_sse = crate::parallel::map(n, |k| {
+        (0..ds.len())
+            .filter(|i| ctx.usable[i * n + k])
+            .map(|i| resid[i * n + k] * resid[i * n + k])
+            .fold(0.0, |s, r2| s + r2)
+    });
     let sse = block_sse.iter().sum();
-    let [a, b]: [Config; 2] = match fits.try_into() {
-        Ok(v) => v,
-        Err(_) => [Config::base(1.0, 0.0), Config::base(1.0, 0.0)],
-    };
+    let [(a, _), (b, _)] = folds;
     Cv {
         resid,
         sse,
@@ -259,11 +267,30 @@ pub fn compare(
     // term absorb what another effect's approximate form leaves behind), and a slow one, a
     // wander or a drift, few. Per-node parameters count once per node with data.
     let n_nodes = after.node_sse.iter().filter(|v| **v > 0.0).count();
-    let d: Vec<f64> = cb.resid.iter().zip(&ca.resid).map(|(a, b)| a - b).collect();
-    let colour = after
-        .colour
-        .get_or_init(|| NoiseModel::colour(ctx, &ca.resid));
-    let seen = noise.seen_by(&d, n).max(colour.seen_by(&d, n)).max(1e-300);
+    let mut d = vec![0.0; ca.resid.len().min(cb.resid.len())];
+    crate::parallel::chunks_mut(&mut d, 1 << 16, |c, out| {
+        let at = c << 16;
+        for (j, v) in out.iter_mut().enumerate() {
+            *v = cb.resid[at + j] - ca.resid[at + j];
+        }
+    });
+    // The two noise models' views of the change, and the change-weighted t statistic below,
+    // side by side (none depends on another).
+    let ((seen_noise, seen_colour), (weighted_t, change_blocks)) = crate::parallel::join(
+        || {
+            crate::parallel::join(
+                || noise.seen_by(&d, n),
+                || {
+                    let colour = after
+                        .colour
+                        .get_or_init(|| NoiseModel::colour(ctx, &ca.resid));
+                    colour.seen_by(&d, n)
+                },
+            )
+        },
+        || change_weighted_t(ctx, cb, ca),
+    );
+    let seen = seen_noise.max(seen_colour).max(1e-300);
     let n_eff = (ca.sse / seen).max(2.0);
     let ratio = (cb.sse / ca.sse.max(1e-300)).max(1e-300);
     let n_params = k.global + k.per_node * n_nodes;
@@ -273,7 +300,6 @@ pub fn compare(
     // removes at least `MIN_WEIGHTED_GAIN` of the SSE and is spread over at least
     // `MIN_CHANGE_BLOCKS` blocks, the gains' t statistic against the change's size per block
     // (a slow effect acts in some blocks more than in others; see `change_weighted_t`).
-    let (weighted_t, change_blocks) = change_weighted_t(ctx, cb, ca);
     let consistent = |bar: f64| {
         block_t >= bar
             || rank_z >= bar
@@ -327,16 +353,21 @@ pub fn compare(
 /// nothing carry no weight.
 pub fn change_weighted_t(ctx: &Context, before: &Cv, after: &Cv) -> (f64, f64) {
     let n = ctx.ds.n;
-    let mut a2 = vec![0.0; ctx.n_blocks];
-    for (i, b) in ctx.block.iter().enumerate() {
-        for k in 0..n {
-            let idx = i * n + k;
-            if ctx.usable[idx] {
-                let d = before.resid[idx] - after.resid[idx];
-                a2[*b] += d * d;
+    // Each block's sum over its samples in time order, blocks side by side.
+    let runs = block_runs(&ctx.block, ctx.n_blocks);
+    let a2 = crate::parallel::map(ctx.n_blocks, |b| {
+        let mut s = 0.0;
+        for i in runs[b].iter().flat_map(|r| r.clone()) {
+            for k in 0..n {
+                let idx = i * n + k;
+                if ctx.usable[idx] {
+                    let d = before.resid[idx] - after.resid[idx];
+                    s += d * d;
+                }
             }
         }
-    }
+        s
+    });
     let g: Vec<f64> = before
         .block_sse
         .iter()
@@ -357,6 +388,22 @@ pub fn change_weighted_t(ctx: &Context, before: &Cv, after: &Cv) -> (f64, f64) {
         / (used.len() - 1) as f64;
     let se = (s2 / sa2).sqrt();
     (if se > 0.0 { beta / se } else { 0.0 }, spread)
+}
+
+/// Each block's samples as runs of consecutive samples, in time order (a block is one run, or
+/// two where the virgin rest's first half joined the second block; see [`Context::block`]).
+fn block_runs(block: &[usize], n_blocks: usize) -> Vec<Vec<std::ops::Range<usize>>> {
+    let mut runs: Vec<Vec<std::ops::Range<usize>>> = vec![Vec::new(); n_blocks];
+    let mut start = 0;
+    for i in 1..=block.len() {
+        if i == block.len() || block[i] != block[start] {
+            if let Some(r) = runs.get_mut(block[start]) {
+                r.push(start..i);
+            }
+            start = i;
+        }
+    }
+    runs
 }
 
 /// Integrated autocorrelation time of a residual (per node, averaged), in samples.
@@ -399,6 +446,54 @@ pub fn tau_int(resid: &[f64], len: usize, n: usize) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_sums_side_by_side_are_the_sums_of_one_pass() {
+        // Four nodes read through a power law with a wiggle, on folds where the virgin rest's
+        // first half joined the second block (a block in two runs).
+        let mut ds = crate::testdata::presses_on(2, 2);
+        let n = ds.n;
+        ds.y = (0..ds.len() * n)
+            .map(|j| {
+                let (i, k) = (j / n, j % n);
+                let f = ds.force[i];
+                (1e3 + 50.0 * k as f64) / (1.0 + f.powf(1.2 + 0.1 * k as f64))
+                    + 3.0 * (0.37 * i as f64 + k as f64).sin()
+            })
+            .collect();
+        let plain = Context::new(&ds);
+        let Some(ctx) = plain.virgin_rest_shared() else {
+            panic!("the fixture's first press comes after a second of rest");
+        };
+        let runs = block_runs(&ctx.block, ctx.n_blocks);
+        assert_eq!(runs[1].len(), 2, "{:?}", runs[1]);
+        assert_eq!(runs[1][0].start, 0);
+        let cv = cross_validate(&ctx, &[Config::base(1.3, 0.0)], &[], 10);
+        let mut block_sse = vec![0.0; ctx.n_blocks];
+        let mut rest_block_sse = vec![0.0; ctx.n_blocks];
+        let mut node_sse = vec![0.0; n];
+        let mut count = 0;
+        let rest_limit = 0.02 * ds.max_force();
+        for i in 0..ds.len() {
+            for k in 0..n {
+                let idx = i * n + k;
+                if ctx.usable[idx] {
+                    let r2 = cv.resid[idx] * cv.resid[idx];
+                    block_sse[ctx.block[i]] += r2;
+                    node_sse[k] += r2;
+                    if ds.force[i] <= rest_limit {
+                        rest_block_sse[ctx.block[i]] += r2;
+                    }
+                    count += 1;
+                }
+            }
+        }
+        assert!(cv.sse > 0.0);
+        assert_eq!(cv.block_sse, block_sse);
+        assert_eq!(cv.rest_block_sse, rest_block_sse);
+        assert_eq!(cv.node_sse, node_sse);
+        assert_eq!(cv.count, count);
+    }
 
     #[test]
     fn each_fold_starts_from_its_own_starting_points() {

@@ -119,8 +119,18 @@ pub fn diagnose(ds: &Dataset, start: &SensorModel, opts: &Options) -> Diagnosis 
     diagnose_with(ds, start, opts, &|_| {})
 }
 
-/// Diagnoses `ds` against the start model, telling `progress` where it is.
+/// Diagnoses `ds` against the start model, telling `progress` where it is. Runs on the worker
+/// pool (see [`crate::parallel::install`]).
 pub fn diagnose_with(
+    ds: &Dataset,
+    start: &SensorModel,
+    opts: &Options,
+    progress: &(dyn Fn(Progress) + Sync),
+) -> Diagnosis {
+    crate::parallel::install(|| diagnose_on_pool(ds, start, opts, progress))
+}
+
+fn diagnose_on_pool(
     ds: &Dataset,
     start: &SensorModel,
     opts: &Options,
@@ -158,8 +168,7 @@ pub fn diagnose_with(
             skipped.push((e.name().to_string(), why.to_string()));
         }
     }
-    let mut noise = NoiseModel::estimate(&ctx, &start_cv.resid);
-    noise.wander = wander;
+    let noise = NoiseModel::estimate_with(&ctx, &start_cv.resid, Some(wander));
     let screen = ctx.coarser(crate::screen::FACTOR);
     // Built only if the selection moves to them (two more copies of the recording's views).
     let shared = std::cell::OnceCell::new();

@@ -134,27 +134,26 @@ pub fn noise_floor(ctx: &Context, resid: &[f64], k: usize) -> f64 {
 pub fn node_stats(ctx: &Context, resid: &[f64]) -> Vec<NodeStat> {
     let ds = ctx.ds;
     let (len, n) = (ds.len(), ds.n);
-    (0..n)
-        .map(|k| {
-            let (mut s, mut c) = (0.0, 0usize);
-            for i in 0..len {
-                if ctx.usable[i * n + k] {
-                    s += resid[i * n + k].powi(2);
-                    c += 1;
-                }
+    // Node by node, nodes side by side.
+    crate::parallel::map(n, |k| {
+        let (mut s, mut c) = (0.0, 0usize);
+        for i in 0..len {
+            if ctx.usable[i * n + k] {
+                s += resid[i * n + k].powi(2);
+                c += 1;
             }
-            let rms = (s / c.max(1) as f64).sqrt();
-            let noise = noise_floor(ctx, resid, k);
-            NodeStat {
-                node: k,
-                row: k / ds.cols,
-                col: k % ds.cols,
-                rms,
-                noise,
-                ratio: if noise > 0.0 { rms / noise } else { 0.0 },
-            }
-        })
-        .collect()
+        }
+        let rms = (s / c.max(1) as f64).sqrt();
+        let noise = noise_floor(ctx, resid, k);
+        NodeStat {
+            node: k,
+            row: k / ds.cols,
+            col: k % ds.cols,
+            rms,
+            noise,
+            ratio: if noise > 0.0 { rms / noise } else { 0.0 },
+        }
+    })
 }
 
 /// Windows (about 1 s) whose RMS over `nodes` exceeds `factor` times the median window.

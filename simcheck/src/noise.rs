@@ -189,6 +189,12 @@ impl NoiseModel {
     /// Estimates the noise from the held-out residual `resid` on the context's no-load samples
     /// (force at most 2 % of the peak).
     pub fn estimate(ctx: &Context, resid: &[f64]) -> NoiseModel {
+        Self::estimate_with(ctx, resid, None)
+    }
+
+    /// [`NoiseModel::estimate`] with the common wander already known (estimated on another
+    /// residual and taken out of the readings): it is kept as it is, not estimated again.
+    pub fn estimate_with(ctx: &Context, resid: &[f64], wander: Option<CommonWander>) -> NoiseModel {
         let ds = ctx.ds;
         let (len, n) = (ds.len(), ds.n);
         let big = ((1.0 / ds.dt()).round() as usize).clamp(3, (len / 8).max(3));
@@ -221,7 +227,7 @@ impl NoiseModel {
         let own = nodes.iter().map(Parts::total).sum::<f64>() / n.max(1) as f64;
         let slow = nodes.iter().map(|p| p.slow + p.fast).sum::<f64>() / n.max(1) as f64;
         NoiseModel {
-            wander: CommonWander::estimate(ctx, resid, own, slow),
+            wander: wander.unwrap_or_else(|| CommonWander::estimate(ctx, resid, own, slow)),
             wander_tau_s: if rho > 0.0 && rho < 1.0 {
                 -ds.dt() / rho.ln()
             } else {
@@ -280,16 +286,23 @@ impl NoiseModel {
         let (len, n) = (ds.len(), ds.n);
         let big = ((1.0 / ds.dt()).round() as usize).clamp(3, (len / 8).max(3));
         let lags = [0, 1, 2, big, 2 * big];
-        let nodes: Vec<Parts> = crate::parallel::map(n, |k| {
-            let x: Vec<f64> = (0..len).map(|i| resid[i * n + k]).collect();
-            let keep: Vec<bool> = (0..len).map(|i| ctx.usable[i * n + k]).collect();
-            parts(&autocov(&x, &keep, &lags), big)
-        });
-        let mean: Vec<f64> = (0..len)
-            .map(|i| (0..n).map(|k| resid[i * n + k]).sum::<f64>() / n as f64)
-            .collect();
-        let all = vec![true; len];
-        let m = parts(&autocov(&mean, &all, &lags), big);
+        // Each node's parts, and the mean's beside them.
+        let (nodes, m) = crate::parallel::join(
+            || {
+                crate::parallel::map(n, |k| {
+                    let x: Vec<f64> = (0..len).map(|i| resid[i * n + k]).collect();
+                    let keep: Vec<bool> = (0..len).map(|i| ctx.usable[i * n + k]).collect();
+                    parts(&autocov(&x, &keep, &lags), big)
+                })
+            },
+            || {
+                let mean: Vec<f64> = (0..len)
+                    .map(|i| (0..n).map(|k| resid[i * n + k]).sum::<f64>() / n as f64)
+                    .collect();
+                let all = vec![true; len];
+                parts(&autocov(&mean, &all, &lags), big)
+            },
+        );
         let avg = |f: &dyn Fn(&Parts) -> f64| nodes.iter().map(f).sum::<f64>() / n.max(1) as f64;
         let nf = n as f64;
         // var(mean) = common + own / n; the common part cannot exceed the nodes' own.

@@ -1,13 +1,17 @@
 //! Timing spans for profiling a diagnosis: with `TAXEL_SIMCHECK_TIMING=1` in the environment,
 //! each span prints its wall time, the process's CPU time over that wall time (how many cores
-//! were busy: 2.0 is both of a 2-core machine) and how many forward-model evaluations ran
-//! inside it to stderr when it ends. Off (the default), a span costs one relaxed atomic read.
+//! were busy: 2.0 is both of a 2-core machine), how many forward-model evaluations ran inside
+//! it and its serial time (the wall time outside the parallel sections started by the calling
+//! thread: what one core did while the others waited) to stderr when it ends. Off (the
+//! default), a span or a parallel section costs one relaxed atomic read.
 
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::OnceLock;
 use std::time::Instant;
 
 static EVALS: AtomicUsize = AtomicUsize::new(0);
+/// Wall time (ns) inside parallel sections started outside the worker pool.
+static PARALLEL_NS: AtomicU64 = AtomicU64::new(0);
 
 fn enabled() -> bool {
     static ON: OnceLock<bool> = OnceLock::new();
@@ -21,12 +25,45 @@ pub fn count_eval() {
     }
 }
 
+thread_local! {
+    /// Whether this thread runs a diagnosis (see [`top`]), and how deep in parallel sections
+    /// it is.
+    static TOP: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+    static DEPTH: std::cell::Cell<u32> = const { std::cell::Cell::new(0) };
+}
+
+/// Runs `f` (a diagnosis) with this thread marked as the one whose work outside parallel
+/// sections is serial.
+pub fn top<T>(f: impl FnOnce() -> T) -> T {
+    let was = TOP.with(|c| c.replace(true));
+    let out = f();
+    TOP.with(|c| c.set(was));
+    out
+}
+
+/// Runs `f`, a parallel section (see [`crate::parallel`]); when timing is on and this is the
+/// thread marked by [`top`], outside any other section, its wall time counts as parallel, not
+/// serial.
+pub fn parallel_section<T>(f: impl FnOnce() -> T) -> T {
+    if !enabled() || !TOP.with(|c| c.get()) || DEPTH.with(|d| d.get()) > 0 {
+        return f();
+    }
+    DEPTH.with(|d| d.set(1));
+    let t0 = Instant::now();
+    let out = f();
+    let ns = u64::try_from(t0.elapsed().as_nanos()).unwrap_or(u64::MAX);
+    DEPTH.with(|d| d.set(0));
+    PARALLEL_NS.fetch_add(ns, Ordering::Relaxed);
+    out
+}
+
 /// A named span; prints when dropped (when timing is on).
 pub struct Span {
     name: String,
     t0: Instant,
     cpu0: Option<f64>,
     evals0: usize,
+    parallel0: u64,
 }
 
 /// The process's user + system CPU time (s), from `/proc/self/stat` (Linux; None elsewhere).
@@ -48,6 +85,7 @@ pub fn span(name: impl Into<String>) -> Span {
         t0: Instant::now(),
         cpu0: if enabled() { cpu_s() } else { None },
         evals0: EVALS.load(Ordering::Relaxed),
+        parallel0: PARALLEL_NS.load(Ordering::Relaxed),
     }
 }
 
@@ -60,9 +98,11 @@ impl Drop for Span {
                 (Some(a), Some(b)) if wall > 0.0 => format!("{:>4.2} cores", (b - a) / wall),
                 _ => "   - cores".to_string(),
             };
+            let parallel = (PARALLEL_NS.load(Ordering::Relaxed) - self.parallel0) as f64 * 1e-9;
             eprintln!(
-                "[timing] {:<40} {wall:>8.3} s {cores} {evals:>6} evaluations",
+                "[timing] {:<40} {wall:>8.3} s {cores} {evals:>6} evaluations {:>7.3} s serial",
                 self.name,
+                (wall - parallel).max(0.0),
             );
         }
     }

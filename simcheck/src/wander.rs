@@ -351,14 +351,20 @@ impl CommonWander {
 /// and time 0: none), from observations `obs` with variances `r` at times `t`; `r0` is the
 /// grid's unit, `dur` the recording's length (s).
 fn max_likelihood(t: &[f64], obs: &[f64], r: &[f64], r0: f64, dur: f64) -> (f64, f64) {
-    let mut best = (run(t, obs, r, 0.0, 1.0).nll, 0.0, 0.0);
-    for &tau in TAUS_S.iter().filter(|t| **t <= 0.5 * dur.max(1.0)) {
-        for j in -2..=MAX_VAR_STEP {
-            let var = r0 * 2f64.powi(j);
-            let nll = run(t, obs, r, var, tau).nll;
-            if nll < best.0 {
-                best = (nll, var, tau);
-            }
+    // Every point of the grid (and no wander, first) side by side; the first best wins.
+    let grid: Vec<(f64, f64)> = std::iter::once((0.0, 1.0))
+        .chain(
+            TAUS_S
+                .iter()
+                .filter(|t| **t <= 0.5 * dur.max(1.0))
+                .flat_map(|&tau| (-2..=MAX_VAR_STEP).map(move |j| (r0 * 2f64.powi(j), tau))),
+        )
+        .collect();
+    let nll = crate::parallel::map(grid.len(), |g| run(t, obs, r, grid[g].0, grid[g].1).nll);
+    let mut best = (nll[0], 0.0, 0.0);
+    for (&(var, tau), &v) in grid.iter().zip(&nll).skip(1) {
+        if v < best.0 {
+            best = (v, var, tau);
         }
     }
     (best.1, best.2)

@@ -38,13 +38,18 @@ impl Readings {
         let mut dom = vec![0.0; m * n];
         let mut g = vec![0.0; m * n];
         let mut usable = vec![false; m * n];
-        for (j, &i) in fit_idx.iter().enumerate() {
-            for k in 0..n {
-                dom[k * m + j] = ctx.dom_obs[i * n + k];
-                g[k * m + j] = ctx.g_obs[i * n + k];
-                usable[k * m + j] = ctx.usable[i * n + k];
+        // Node by node (nodes side by side): each node's samples are one stretch of each array.
+        crate::parallel::chunks_mut2(&mut dom, &mut g, m, |k, dom, g| {
+            for (j, &i) in fit_idx.iter().enumerate() {
+                dom[j] = ctx.dom_obs[i * n + k];
+                g[j] = ctx.g_obs[i * n + k];
             }
-        }
+        });
+        crate::parallel::chunks_mut(&mut usable, m, |k, usable| {
+            for (j, &i) in fit_idx.iter().enumerate() {
+                usable[j] = ctx.usable[i * n + k];
+            }
+        });
         Readings { dom, g, usable }
     }
 }
@@ -109,11 +114,12 @@ impl Observed {
         let (n, m) = (ds.n, fit_idx.len());
         let r = cfg.floor();
         let rs = cfg.crosstalk.unwrap_or(0.0);
-        let (rows, cols) = (ds.rows, ds.cols);
+        let cols = ds.cols;
         let mut g2 = vec![0.0; m * n];
         let mut wgt = vec![0.0; m * n];
         let g = &readings.g;
-        for row in 0..rows {
+        // Row by row (rows side by side): each row's nodes are one stretch of each array.
+        crate::parallel::chunks_mut2(&mut g2, &mut wgt, cols * m, |row, g2, wgt| {
             // The row's crosstalk factor per sample (all 1 without crosstalk).
             let xf: Vec<f64> = if rs > 0.0 {
                 (0..m)
@@ -136,12 +142,12 @@ impl Observed {
                     if !readings.usable[at] || rg >= 0.9 {
                         continue;
                     }
-                    g2[at] = g1 / (1.0 - rg);
+                    g2[c * m + j] = g1 / (1.0 - rg);
                     let d = ds.map.ddom_dg(g[at]) * xf * (1.0 - rg).powi(2);
-                    wgt[at] = d * d;
+                    wgt[c * m + j] = d * d;
                 }
             }
-        }
+        });
         Observed { g2, wgt, readings }
     }
 

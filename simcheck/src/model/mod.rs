@@ -85,8 +85,16 @@ fn evaluate_inner(
     } else {
         1
     };
-    let mut terms = Terms::new(ctx, cfg, &fit_idx, want_pred, step);
-    let (mut m, mut latent) = thermal_factor(ctx, cfg);
+    // The regressors, the thermal factor and the observations side by side (independent).
+    let (mut terms, ((mut m, mut latent), obs)) = crate::parallel::join(
+        || Terms::new(ctx, cfg, &fit_idx, want_pred, step),
+        || {
+            crate::parallel::join(
+                || thermal_factor(ctx, cfg),
+                || Observed::cached(ctx, cfg, &fit_idx),
+            )
+        },
+    );
     if cfg.thermal_gain_only && latent.is_none() {
         // The drift scales the force term only: it joins the sensitivity.
         for (s, mi) in terms.sens.iter_mut().zip(m.iter_mut()) {
@@ -94,7 +102,6 @@ fn evaluate_inner(
             *mi = 1.0;
         }
     }
-    let obs = Observed::cached(ctx, cfg, &fit_idx);
     let mut gains = cfg.curv_trials.clone();
     let mut theta = vec![vec![0.0; terms.lay.dim()]; n];
     let mut locals: Vec<std::sync::Arc<Locals>> = Vec::new();
