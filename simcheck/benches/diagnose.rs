@@ -9,6 +9,7 @@ use taxel_simcheck::diagnose::{diagnose, Options};
 use taxel_simcheck::refworld::{generate, Case};
 
 fn ten_minutes(c: &mut Criterion) {
+    taxel_simcheck::memory::keep_freed_memory();
     let rec = generate(Case::TwoEffects, 9, 600.0);
     let start = taxel_sim::SensorModel::default();
     let Ok((ds, _)) = Dataset::from_recording(rec, 4, 4, &start.readout, true) else {

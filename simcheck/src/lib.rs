@@ -29,6 +29,7 @@ pub mod hold;
 mod joint;
 pub mod law;
 pub mod locate;
+pub mod memory;
 pub mod model;
 pub mod named;
 pub mod noise;
