@@ -475,12 +475,12 @@ mod tests {
         let mut count = 0;
         let rest_limit = 0.02 * ds.max_force();
         for i in 0..ds.len() {
-            for k in 0..n {
+            for (k, node) in node_sse.iter_mut().enumerate() {
                 let idx = i * n + k;
                 if ctx.usable[idx] {
                     let r2 = cv.resid[idx] * cv.resid[idx];
                     block_sse[ctx.block[i]] += r2;
-                    node_sse[k] += r2;
+                    *node += r2;
                     if ds.force[i] <= rest_limit {
                         rest_block_sse[ctx.block[i]] += r2;
                     }
