@@ -209,6 +209,20 @@ fn diagnose_on_pool(
     sel.recheck_crosstalk();
     let mut contributions = sel.backward();
     drop(sp);
+    // A drift the selection's folds show only because one fold extrapolates above its loads:
+    // it must also keep its place on folds that share the peak.
+    let sp = crate::timing::span("second look on folds that share the peak");
+    if let Some(pc) = sel.ctx.peak_shared() {
+        let pc = if sel.moved {
+            pc.virgin_rest_shared().unwrap_or(pc)
+        } else {
+            pc
+        };
+        if sel.peak_recheck(&pc) {
+            contributions = sel.backward();
+        }
+    }
+    drop(sp);
     let sp = crate::timing::span("final model, SIM.toml law, findings");
     let crate::selection::Selection {
         ctx: sel_ctx,

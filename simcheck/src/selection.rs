@@ -575,38 +575,7 @@ impl Selection<'_> {
                         self.ev_n,
                     ),
                 };
-                let mut v = compare(
-                    ctx,
-                    &cv_minus,
-                    &self.cur_cv,
-                    n_params(&self.cur, e),
-                    &self.noise,
-                );
-                let checked = v;
-                // Taking out a set takes any loop on it too: judged by the set's signature.
-                let form = if self.cur.hyst_set {
-                    Config {
-                        hysteresis: None,
-                        ..self.cur.clone()
-                    }
-                } else {
-                    self.cur.clone()
-                };
-                signature_check(ds, &self.noise, e, &form, &cv_minus, &self.cur_cv, &mut v);
-                // A drift of the force term only leaves the rest level alone and is not
-                // gain-checked when it is tested (`checks::gain_betas` is NaN then); held out
-                // here, the change at rest is the other effects refitting (a creep's recovery),
-                // not the drift's, so its verdict is not checked either (zoo-sat's creep +
-                // drift, training seed 1: rest beta 5.3 against 0.55 loaded, the drift that
-                // removed 19 % dropped as a wander). Its betas are still reported.
-                if e == EffectKind::ThermalDrift && self.cur.thermal_gain_only {
-                    v = Verdict {
-                        gain_betas: v.gain_betas,
-                        gain_rest_se: v.gain_rest_se,
-                        within_trial_beta: v.within_trial_beta,
-                        ..checked
-                    };
-                }
+                let v = self.kept_verdict(ctx, e, &cv_minus, &self.cur_cv);
                 self.backward.push(Trial {
                     round: self.trials.iter().map(|t| t.round).max().unwrap_or(0),
                     effect: e.name().to_string(),
@@ -634,6 +603,107 @@ impl Selection<'_> {
             if !dropped {
                 return contributions;
             }
+        }
+    }
+
+    /// Whether effect `e` keeps its place in the current model on `ctx`'s folds: the model held
+    /// out without it (`cv_minus`) against the model (`cv_cur`), the effect's signature checked.
+    fn kept_verdict(&self, ctx: &Context, e: EffectKind, cv_minus: &Cv, cv_cur: &Cv) -> Verdict {
+        let mut v = compare(ctx, cv_minus, cv_cur, n_params(&self.cur, e), &self.noise);
+        let checked = v;
+        // Taking out a set takes any loop on it too: judged by the set's signature.
+        let form = if self.cur.hyst_set {
+            Config {
+                hysteresis: None,
+                ..self.cur.clone()
+            }
+        } else {
+            self.cur.clone()
+        };
+        signature_check(ctx.ds, &self.noise, e, &form, cv_minus, cv_cur, &mut v);
+        // A drift of the force term only leaves the rest level alone and is not gain-checked
+        // when it is tested (`checks::gain_betas` is NaN then); held out here, the change at
+        // rest is the other effects refitting (a creep's recovery), not the drift's, so its
+        // verdict is not checked either (zoo-sat's creep + drift, training seed 1: rest beta
+        // 5.3 against 0.55 loaded, the drift that removed 19 % dropped as a wander). Its betas
+        // are still reported.
+        if e == EffectKind::ThermalDrift && self.cur.thermal_gain_only {
+            v = Verdict {
+                gain_betas: v.gain_betas,
+                gain_rest_se: v.gain_rest_se,
+                within_trial_beta: v.within_trial_beta,
+                ..checked
+            };
+        }
+        v
+    }
+
+    /// A second look for the selection's thermal drift when its folds leave one under
+    /// [`crate::context::FOLD_PEAK_SHARE`] of the peak load: on `peak`, folds that share it
+    /// (see [`Context::peak_shared`]), the drift must keep its place too, held out against the
+    /// model without it; if it does not, it is dropped. True when it was. Each look is logged
+    /// with the backward pass's tests, named `thermal_drift (folds that share the peak)`.
+    ///
+    /// A fold whose training never reached the peak extrapolates each node's law above it, and
+    /// a slow factor common to the nodes, free in every block, can take up the blocks it
+    /// misses: zoo-hys seed 269's creep case named a latent drift beside the creep. Effects
+    /// tied to the load's history (creep, hysteresis) cannot act in a block apart from its
+    /// loads, and are not looked at again: on folds whose first block is shorter, a loop
+    /// fitted from the sensor's first press can fail outright (world B's mm_hysteresis: the
+    /// model with the loop held out 92 % worse than without it).
+    pub(crate) fn peak_recheck(&mut self, peak: &Context) -> bool {
+        let has_kappa = peak.ds.kappa.is_some();
+        let held_out = |c: &Config| {
+            cross_validate(
+                peak,
+                std::slice::from_ref(c),
+                &refit_params(c, has_kappa),
+                self.ev_n,
+            )
+        };
+        let mut any = false;
+        'again: loop {
+            let effects: Vec<EffectKind> = self
+                .cur
+                .effects()
+                .into_iter()
+                .filter(|e| *e == EffectKind::ThermalDrift && !self.fixed.contains_key(e))
+                .collect();
+            if effects.is_empty() {
+                return any;
+            }
+            let cv_cur = held_out(&self.cur);
+            for e in effects {
+                let minus = self.cur.without(e);
+                let cv_minus = held_out(&minus);
+                let v = self.kept_verdict(peak, e, &cv_minus, &cv_cur);
+                self.backward.push(Trial {
+                    round: self.trials.iter().map(|t| t.round).max().unwrap_or(0),
+                    effect: format!("{} (folds that share the peak)", e.name()),
+                    verdict: v,
+                    seconds: 0.0,
+                    screened: false,
+                });
+                if !v.keep {
+                    let ctx = self.ctx;
+                    self.cur = fit_all(
+                        ctx,
+                        std::slice::from_ref(&minus),
+                        &all_params(&minus, has_kappa),
+                        self.ev_n * 2,
+                    );
+                    self.cur_cv = cross_validate(
+                        ctx,
+                        std::slice::from_ref(&minus),
+                        &refit_params(&minus, has_kappa),
+                        self.ev_n,
+                    );
+                    self.last = None;
+                    any = true;
+                    continue 'again;
+                }
+            }
+            return any;
         }
     }
 
