@@ -253,6 +253,16 @@ fn candidate_variants(
                 .collect()
         };
         let (u2, u3) = (under(&starts), under(&three));
+        // And creep that stays with the load and grows with its level.
+        let level = |v: &[Config]| -> Vec<Config> {
+            v.iter()
+                .map(|s| Config {
+                    creep_level: true,
+                    ..s.clone()
+                })
+                .collect()
+        };
+        let (l2, l3) = (level(&u2), level(&u3));
         // Prony creep that recovers at its own pace: slower (or faster) than it set in.
         let slow_back: Vec<Config> = starts
             .iter()
@@ -266,8 +276,10 @@ fn candidate_variants(
         return vec![
             (starts, params.clone()),
             (three, p3.clone()),
-            (u2, params),
-            (u3, p3),
+            (u2, params.clone()),
+            (u3, p3.clone()),
+            (l2, params),
+            (l3, p3),
             (slow_back, p_back),
         ];
     }
@@ -559,20 +571,23 @@ mod tests {
             assert_eq!(n_params(cfg, EffectKind::ThermalDrift).global, *k);
         }
         // Creep: two Prony terms, or three (charged two parameters more), each also as creep
-        // that stays with the load; and two Prony terms recovering at their own pace (charged
-        // one more).
+        // that stays with the load, on or by its level; and two Prony terms recovering at their
+        // own pace (charged one more).
         let creep = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Creep);
-        assert_eq!(creep.len(), 5);
-        for ((starts, params), (terms, under, own_pace)) in creep.iter().zip([
-            (2, false, false),
-            (3, false, false),
-            (2, true, false),
-            (3, true, false),
-            (2, false, true),
+        assert_eq!(creep.len(), 7);
+        for ((starts, params), (terms, under, level, own_pace)) in creep.iter().zip([
+            (2, false, false, false),
+            (3, false, false, false),
+            (2, true, false, false),
+            (3, true, false, false),
+            (2, true, true, false),
+            (3, true, true, false),
+            (2, false, false, true),
         ]) {
             let cfg = &starts[0];
             assert_eq!(cfg.creep.as_ref().map(Vec::len), Some(terms));
             assert!(starts.iter().all(|c| c.creep_under_load == under));
+            assert!(starts.iter().all(|c| c.creep_level == level));
             assert!(starts.iter().all(|c| (c.creep_recovery != 1.0) == own_pace));
             assert_eq!(
                 n_params(cfg, EffectKind::Creep).global,

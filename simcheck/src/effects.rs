@@ -80,6 +80,13 @@ pub struct Config {
     /// with no recovery tail, where the Prony form above (linear viscoelastic superposition)
     /// recovers with the same time constants after unloading.
     pub creep_under_load: bool,
+    /// With `creep_under_load`: creep that grows with the load's level, not only with the load
+    /// being on (`L = F (1 + sum c lowpass_tau(F / F_max))`, `F_max` the recording's peak): a
+    /// press to half the peak creeps half as much, relative to its load, as one to the peak
+    /// (the creep compliance of a polymer grows with the stress: nonlinear viscoelasticity).
+    /// The states recover with their own time constants after unloading, unseen at rest (the
+    /// factor multiplies the load) but carried into the next press.
+    pub creep_level: bool,
     /// Creep that recovers more slowly (or faster) than it grows: while a term's state falls
     /// (the load, or the load being on, has dropped below it) its time constant is this many
     /// times its growth's (1: linear viscoelastic recovery with the same time constants; a
@@ -178,6 +185,7 @@ impl Config {
             saturation: false,
             creep: None,
             creep_under_load: false,
+            creep_level: false,
             creep_recovery: 1.0,
             hysteresis: None,
             hyst_mix: 0.0,
@@ -245,6 +253,7 @@ impl Config {
             EffectKind::Creep => {
                 c.creep = None;
                 c.creep_under_load = false;
+                c.creep_level = false;
                 c.creep_recovery = 1.0;
             }
             EffectKind::Hysteresis => {
@@ -288,6 +297,7 @@ impl Config {
             EffectKind::Creep => {
                 c.creep.clone_from(&from.creep);
                 c.creep_under_load = from.creep_under_load;
+                c.creep_level = from.creep_level;
                 c.creep_recovery = from.creep_recovery;
             }
             EffectKind::Hysteresis => {
@@ -325,6 +335,7 @@ impl Config {
             EffectKind::Creep => {
                 self.creep.as_ref().map(Vec::len) == other.creep.as_ref().map(Vec::len)
                     && self.creep_under_load == other.creep_under_load
+                    && self.creep_level == other.creep_level
                     && (self.creep_recovery == 1.0) == (other.creep_recovery == 1.0)
             }
             EffectKind::Hysteresis => {

@@ -7,7 +7,9 @@ use crate::effects::{Config, MAX_CREEP_TERMS};
 use crate::numeric::StepFactors;
 
 /// The load transform: creep on the load `f` (the Prony form, or creep that stays with the
-/// load, see [`Config::creep_under_load`]; its state is driven by whether `f` is above `on_n`) (hysteresis enters as its own per-node term, see
+/// load, see [`Config::creep_under_load`]; its state is driven by whether `f` is above
+/// `gate.0`, or with [`Config::creep_level`] by `f / gate.1`, its level relative to the peak
+/// `gate.1`) (hysteresis enters as its own per-node term, see
 /// [`crate::numeric::play_gap`], or in `f` itself); the load, clamped at 0, is written for the
 /// samples where `need` holds, in order (every sample when `None`; the parameter search looks
 /// at every `stride`-th training sample only), and the creep states follow every sample. A low-pass's
@@ -18,7 +20,7 @@ pub fn load_series(
     dt: &[f64],
     cfg: &Config,
     tau: (f64, f64),
-    on_n: f64,
+    gate: (f64, f64),
     need: Option<&[bool]>,
     out: &mut Vec<f64>,
 ) {
@@ -44,9 +46,11 @@ pub fn load_series(
         if let Some(terms) = &cfg.creep {
             let base = l;
             // The state follows the load, or, for creep that stays with the load, whether the
-            // load is on (above `on_n`).
-            let input = if cfg.creep_under_load {
-                f64::from(u8::from(base > on_n))
+            // load is on (above `gate.0`) or its level.
+            let input = if cfg.creep_under_load && cfg.creep_level {
+                base / gate.1.max(1e-12)
+            } else if cfg.creep_under_load {
+                f64::from(u8::from(base > gate.0))
             } else {
                 base
             };
@@ -274,7 +278,7 @@ mod tests {
                 &dt,
                 &cfg,
                 (0.05, 100.0),
-                0.05,
+                (0.05, 1.0),
                 None,
                 &mut out,
             );
@@ -290,6 +294,48 @@ mod tests {
         let peak = 0.5 * (1.0 - (-9.9f64 / 2.0).exp());
         assert!((same[119] - peak * (-2.0f64 / 2.0).exp()).abs() < 1e-9);
         assert!((slow[119] - peak * (-2.0f64 / 6.0).exp()).abs() < 1e-9);
+    }
+
+    #[test]
+    fn creep_by_level_grows_with_the_load_it_holds() {
+        // 20 s at half the peak, 20 s unloaded, 20 s at the peak (2 N), sampled at 10 Hz; one
+        // term (c 0.2, 2 s) of creep that stays with the load, on or by its level.
+        let f: Vec<f64> = (0..600)
+            .map(|i| match i {
+                0..200 => 1.0,
+                200..400 => 0.0,
+                _ => 2.0,
+            })
+            .collect();
+        let dt = vec![0.1; f.len()];
+        let run = |level: bool| -> Vec<f64> {
+            let cfg = Config {
+                creep: Some(vec![(0.2, 2.0)]),
+                creep_under_load: true,
+                creep_level: level,
+                ..Config::base(1.0, 1.0)
+            };
+            let mut out = Vec::new();
+            load_series(
+                f.iter().copied(),
+                &dt,
+                &cfg,
+                (0.05, 100.0),
+                (0.1, 2.0),
+                None,
+                &mut out,
+            );
+            out
+        };
+        let (on, by_level) = (run(false), run(true));
+        // Held long: the load on creeps by c on either press; by level by c F / F_max.
+        let settled = |v: &[f64], i: usize| v[i] / f[i] - 1.0;
+        assert!((settled(&on, 199) - 0.2).abs() < 1e-3, "{}", settled(&on, 199));
+        assert!((settled(&on, 599) - 0.2).abs() < 1e-3, "{}", settled(&on, 599));
+        assert!((settled(&by_level, 199) - 0.1).abs() < 1e-3);
+        assert!((settled(&by_level, 599) - 0.2).abs() < 1e-3);
+        // Unloaded, neither leaves anything in the load.
+        assert!(on[200..400].iter().chain(&by_level[200..400]).all(|v| *v == 0.0));
     }
 
     #[test]

@@ -35,6 +35,9 @@ pub fn effect_params(
                     f64::from(u8::from(cfg.creep_under_load)),
                 );
             }
+            if cfg.creep.is_some() && cfg.creep_under_load {
+                p.insert("by_level".into(), f64::from(u8::from(cfg.creep_level)));
+            }
             if cfg.creep.is_some() && cfg.creep_recovery != 1.0 {
                 p.insert("recovery_factor".into(), cfg.creep_recovery);
             }

@@ -33,8 +33,9 @@ pub(super) struct Loads {
 /// (kept in the context, see [`Context::state_grid`]) and whether the fit needs its load (all
 /// when `None`).
 struct Grid {
-    /// The force above which creep that stays with the load counts the load as on.
-    on_n: f64,
+    /// The force above which creep that stays with the load counts the load as on, and the
+    /// peak its level is read against (see [`load_series`]).
+    gate: (f64, f64),
     base: std::sync::Arc<StateGrid>,
     need: Option<Vec<bool>>,
 }
@@ -50,7 +51,7 @@ impl Grid {
     fn new(ctx: &Context, need: Option<&[bool]>, step: usize) -> Grid {
         let need = need.map(|m| m.iter().step_by(step).copied().collect());
         Grid {
-            on_n: 0.05 * ctx.ds.max_force(),
+            gate: (0.05 * ctx.ds.max_force(), ctx.ds.max_force()),
             base: ctx.state_grid(step),
             need,
         }
@@ -64,7 +65,7 @@ impl Grid {
             &self.dt,
             cfg,
             tau_max,
-            self.on_n,
+            self.gate,
             self.need.as_deref(),
             &mut p,
         );

@@ -41,7 +41,9 @@ pub fn extended_model(
     if cfg.creep.is_some() && cfg.creep_recovery != 1.0 {
         notes.push(format!("creep was found recovering at its own pace: after the load falls each term's time constant is {:.2} times its creep's; taxel-sim's Prony creep recovers with the same time constants: SIM.toml carries the creep's", cfg.creep_recovery));
     }
-    if cfg.creep_under_load {
+    if cfg.creep_under_load && cfg.creep_level {
+        notes.push("creep was found in the form that stays with the load and grows with its level (L = F (1 + sum c lowpass(F / F_max))); taxel-sim's creep is the Prony form, which recovers after unloading: SIM.toml carries the same amplitudes and time constants in that form".into());
+    } else if cfg.creep_under_load {
         notes.push("creep was found in the form that stays with the load (L = F (1 + sum c lowpass(load on)), no recovery tail after unloading); taxel-sim's creep is the Prony form, which recovers after unloading: SIM.toml carries the same amplitudes and time constants in that form".into());
     }
     hysteresis(&mut m, ds, cfg, &d.sim_theta, &mut notes);
