@@ -330,12 +330,23 @@ mod tests {
         let (on, by_level) = (run(false), run(true));
         // Held long: the load on creeps by c on either press; by level by c F / F_max.
         let settled = |v: &[f64], i: usize| v[i] / f[i] - 1.0;
-        assert!((settled(&on, 199) - 0.2).abs() < 1e-3, "{}", settled(&on, 199));
-        assert!((settled(&on, 599) - 0.2).abs() < 1e-3, "{}", settled(&on, 599));
+        assert!(
+            (settled(&on, 199) - 0.2).abs() < 1e-3,
+            "{}",
+            settled(&on, 199)
+        );
+        assert!(
+            (settled(&on, 599) - 0.2).abs() < 1e-3,
+            "{}",
+            settled(&on, 599)
+        );
         assert!((settled(&by_level, 199) - 0.1).abs() < 1e-3);
         assert!((settled(&by_level, 599) - 0.2).abs() < 1e-3);
         // Unloaded, neither leaves anything in the load.
-        assert!(on[200..400].iter().chain(&by_level[200..400]).all(|v| *v == 0.0));
+        assert!(on[200..400]
+            .iter()
+            .chain(&by_level[200..400])
+            .all(|v| *v == 0.0));
     }
 
     #[test]

@@ -1,8 +1,8 @@
-//! Two-way parallelism on a pool of worker threads (rayon's): the cross-validation runs its two
-//! folds side by side, and an evaluation splits its nodes (or rows) between the workers. Work
-//! split inside a fold is split again, and an idle worker steals it, so a fold that finishes
-//! first helps the other. Results never depend on whether or how work was split: each item is
-//! computed on its own and the callers reduce them in item order.
+//! Parallelism on a pool of worker threads, one per core (rayon's): the cross-validation runs
+//! its two folds side by side, and an evaluation splits its nodes (or rows) between the
+//! workers. Work split inside a fold is split again, and an idle worker steals it, so a fold
+//! that finishes first helps the other. Results never depend on whether or how work was
+//! split: each item is computed on its own and the callers reduce them in item order.
 
 use std::sync::OnceLock;
 

@@ -10,7 +10,7 @@ use std::sync::OnceLock;
 use std::time::Instant;
 
 static EVALS: AtomicUsize = AtomicUsize::new(0);
-/// Wall time (ns) inside parallel sections started outside the worker pool.
+/// Wall time (ns) inside parallel sections started by the thread marked by [`top`].
 static PARALLEL_NS: AtomicU64 = AtomicU64::new(0);
 
 fn enabled() -> bool {
