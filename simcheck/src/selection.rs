@@ -641,7 +641,7 @@ impl Selection<'_> {
     /// A second look for the selection's thermal drift when its folds leave one under
     /// [`crate::context::FOLD_PEAK_SHARE`] of the peak load: on `peak`, folds that share it
     /// (see [`Context::peak_shared`]), the drift must keep its place too, held out against the
-    /// model without it; if it does not, it is dropped. True when it was. Each look is logged
+    /// model without it; if it does not, it is dropped. True when it was. The look is logged
     /// with the backward pass's tests, named `thermal_drift (folds that share the peak)`.
     ///
     /// A fold whose training never reached the peak extrapolates each node's law above it, and
@@ -652,59 +652,42 @@ impl Selection<'_> {
     /// fitted from the sensor's first press can fail outright (world B's mm_hysteresis: the
     /// model with the loop held out 92 % worse than without it).
     pub(crate) fn peak_recheck(&mut self, peak: &Context) -> bool {
+        let e = EffectKind::ThermalDrift;
+        if !self.cur.effects().contains(&e) || self.fixed.contains_key(&e) {
+            return false;
+        }
         let has_kappa = peak.ds.kappa.is_some();
-        let held_out = |c: &Config| {
+        let held_out = |ctx: &Context, c: &Config| {
             cross_validate(
-                peak,
+                ctx,
                 std::slice::from_ref(c),
                 &refit_params(c, has_kappa),
                 self.ev_n,
             )
         };
-        let mut any = false;
-        'again: loop {
-            let effects: Vec<EffectKind> = self
-                .cur
-                .effects()
-                .into_iter()
-                .filter(|e| *e == EffectKind::ThermalDrift && !self.fixed.contains_key(e))
-                .collect();
-            if effects.is_empty() {
-                return any;
-            }
-            let cv_cur = held_out(&self.cur);
-            for e in effects {
-                let minus = self.cur.without(e);
-                let cv_minus = held_out(&minus);
-                let v = self.kept_verdict(peak, e, &cv_minus, &cv_cur);
-                self.backward.push(Trial {
-                    round: self.trials.iter().map(|t| t.round).max().unwrap_or(0),
-                    effect: format!("{} (folds that share the peak)", e.name()),
-                    verdict: v,
-                    seconds: 0.0,
-                    screened: false,
-                });
-                if !v.keep {
-                    let ctx = self.ctx;
-                    self.cur = fit_all(
-                        ctx,
-                        std::slice::from_ref(&minus),
-                        &all_params(&minus, has_kappa),
-                        self.ev_n * 2,
-                    );
-                    self.cur_cv = cross_validate(
-                        ctx,
-                        std::slice::from_ref(&minus),
-                        &refit_params(&minus, has_kappa),
-                        self.ev_n,
-                    );
-                    self.last = None;
-                    any = true;
-                    continue 'again;
-                }
-            }
-            return any;
+        let minus = self.cur.without(e);
+        let (cv_cur, cv_minus) = (held_out(peak, &self.cur), held_out(peak, &minus));
+        let v = self.kept_verdict(peak, e, &cv_minus, &cv_cur);
+        self.backward.push(Trial {
+            round: self.trials.iter().map(|t| t.round).max().unwrap_or(0),
+            effect: format!("{} (folds that share the peak)", e.name()),
+            verdict: v,
+            seconds: 0.0,
+            screened: false,
+        });
+        if v.keep {
+            return false;
         }
+        let ctx = self.ctx;
+        self.cur = fit_all(
+            ctx,
+            std::slice::from_ref(&minus),
+            &all_params(&minus, has_kappa),
+            self.ev_n * 2,
+        );
+        self.cur_cv = held_out(ctx, &minus);
+        self.last = None;
+        true
     }
 
     /// With effects in the model, the spline law must still pay for itself against the start
