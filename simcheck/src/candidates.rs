@@ -243,34 +243,28 @@ fn candidate_variants(
             .collect();
         let mut p3 = params.clone();
         p3.extend([Param::CreepC(2), Param::CreepLnTau(2)]);
-        // Creep that stays with the load (no recovery tail), with two terms or three.
-        let under = |v: &[Config]| -> Vec<Config> {
+        // Each start with one field of the form set.
+        let with = |v: &[Config], set: fn(&mut Config)| -> Vec<Config> {
             v.iter()
-                .map(|s| Config {
-                    creep_under_load: true,
-                    ..s.clone()
+                .map(|s| {
+                    let mut s = s.clone();
+                    set(&mut s);
+                    s
                 })
                 .collect()
         };
-        let (u2, u3) = (under(&starts), under(&three));
-        // And creep that stays with the load and grows with its level.
-        let level = |v: &[Config]| -> Vec<Config> {
-            v.iter()
-                .map(|s| Config {
-                    creep_level: true,
-                    ..s.clone()
-                })
-                .collect()
-        };
-        let (l2, l3) = (level(&u2), level(&u3));
+        // Creep that stays with the load (no recovery tail), with two terms or three; and creep
+        // that stays with the load and grows with its level.
+        let (u2, u3) = (
+            with(&starts, |c| c.creep_under_load = true),
+            with(&three, |c| c.creep_under_load = true),
+        );
+        let (l2, l3) = (
+            with(&u2, |c| c.creep_level = true),
+            with(&u3, |c| c.creep_level = true),
+        );
         // Prony creep that recovers at its own pace: slower (or faster) than it set in.
-        let slow_back: Vec<Config> = starts
-            .iter()
-            .map(|s| Config {
-                creep_recovery: 3.0,
-                ..s.clone()
-            })
-            .collect();
+        let slow_back = with(&starts, |c| c.creep_recovery = 3.0);
         let mut p_back = params.clone();
         p_back.push(Param::CreepLnRecovery);
         return vec![

@@ -261,28 +261,35 @@ pub fn latent_knots_n(ds: &Dataset, k: usize) -> Vec<f64> {
 mod tests {
     use super::*;
 
+    /// [`load_series`] of `f` at intervals of 0.1 s, every sample, creep's time constants within
+    /// 0.05..100 s, the load on above 5 % of `peak`.
+    fn series(f: &[f64], cfg: &Config, peak: f64) -> Vec<f64> {
+        let dt = vec![0.1; f.len()];
+        let mut out = Vec::new();
+        let gate = (0.05 * peak, peak);
+        load_series(
+            f.iter().copied(),
+            &dt,
+            cfg,
+            (0.05, 100.0),
+            gate,
+            None,
+            &mut out,
+        );
+        out
+    }
+
     #[test]
     fn creep_recovers_at_its_own_pace() {
         // 10 s held at 1 N, then 30 s unloaded, sampled at 10 Hz; one Prony term (c 0.5, 2 s).
         let f: Vec<f64> = (0..400).map(|i| if i < 100 { 1.0 } else { 0.0 }).collect();
-        let dt = vec![0.1; f.len()];
         let run = |recovery: f64| -> Vec<f64> {
             let cfg = Config {
                 creep: Some(vec![(0.5, 2.0)]),
                 creep_recovery: recovery,
                 ..Config::base(1.0, 1.0)
             };
-            let mut out = Vec::new();
-            load_series(
-                f.iter().copied(),
-                &dt,
-                &cfg,
-                (0.05, 100.0),
-                (0.05, 1.0),
-                None,
-                &mut out,
-            );
-            out
+            series(&f, &cfg, 1.0)
         };
         let (same, slow) = (run(1.0), run(3.0));
         // Creeping in, both forms are the same: 1 + 0.5 (1 - exp(-t / 2)).
@@ -307,7 +314,6 @@ mod tests {
                 _ => 2.0,
             })
             .collect();
-        let dt = vec![0.1; f.len()];
         let run = |level: bool| -> Vec<f64> {
             let cfg = Config {
                 creep: Some(vec![(0.2, 2.0)]),
@@ -315,17 +321,7 @@ mod tests {
                 creep_level: level,
                 ..Config::base(1.0, 1.0)
             };
-            let mut out = Vec::new();
-            load_series(
-                f.iter().copied(),
-                &dt,
-                &cfg,
-                (0.05, 100.0),
-                (0.1, 2.0),
-                None,
-                &mut out,
-            );
-            out
+            series(&f, &cfg, 2.0)
         };
         let (on, by_level) = (run(false), run(true));
         // Held long: the load on creeps by c on either press; by level by c F / F_max.

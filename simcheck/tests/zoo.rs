@@ -23,6 +23,22 @@ fn check_seed(family: Family, case: Case, seed: u64) {
     );
 }
 
+/// Runs one case with its outputs in a temporary directory and checks that it passes; returns
+/// the directory (kept while it lives), the case's output folder and its report.json.
+fn passing_case(
+    family: Family,
+    case: Case,
+    seed: u64,
+) -> (tempfile::TempDir, std::path::PathBuf, serde_json::Value) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let row = run_case_in(family, case, seed, 300.0, Some(dir.path())).expect("diagnose runs");
+    assert!(row.pass, "verdict {} named {:?}", row.verdict, row.named);
+    let out = dir.path().join(case.slug());
+    let report = std::fs::read_to_string(out.join("report.json")).expect("report.json");
+    let j = serde_json::from_str(&report).expect("report.json parses");
+    (dir, out, j)
+}
+
 /// Logarithmic law on a 12-bit divider that falls with force, log-time creep that leaves
 /// with the load (no recovery tail), per-node wander and spikes. The default model's ADC is
 /// 10-bit; the readings are read as 12-bit, and SIM.toml must say so: written with the start
@@ -31,18 +47,12 @@ fn check_seed(family: Family, case: Case, seed: u64) {
 /// taxel-sim's recovering Prony creep).
 #[test]
 fn log_time_creep_under_load_is_found_on_a_falling_divider() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let row = run_case_in(Family::ZooLog, Case::Creep, 1, 300.0, Some(dir.path()))
-        .expect("diagnose runs");
-    assert!(row.pass, "verdict {} named {:?}", row.verdict, row.named);
-    let case = dir.path().join(Case::Creep.slug());
+    let (_dir, case, j) = passing_case(Family::ZooLog, Case::Creep, 1);
     let sim = std::fs::read_to_string(case.join("SIM.toml")).expect("SIM.toml");
     assert!(
         sim.lines().any(|l| l.trim() == "adc_bits = 12"),
         "SIM.toml's readout:\n{sim}"
     );
-    let report = std::fs::read_to_string(case.join("report.json")).expect("report.json");
-    let j: serde_json::Value = serde_json::from_str(&report).expect("report.json parses");
     let resim = j["resim_rmse_taxel_sim"].as_f64().unwrap_or(f64::NAN);
     assert!(resim < 300.0, "taxel-sim from SIM.toml: RMSE {resim}");
 }
@@ -94,19 +104,7 @@ fn a_loop_that_widens_with_the_load_and_differs_by_node_is_named_alone() {
 /// counts (main's additive plays: 4.49). The loop must reach SIM.toml.
 #[test]
 fn an_additive_bouc_wen_under_another_law_reaches_sim_toml() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let row = run_case_in(
-        Family::ZooAmp,
-        Case::Hysteresis,
-        207,
-        300.0,
-        Some(dir.path()),
-    )
-    .expect("diagnose runs");
-    assert!(row.pass, "verdict {} named {:?}", row.verdict, row.named);
-    let case = dir.path().join(Case::Hysteresis.slug());
-    let report = std::fs::read_to_string(case.join("report.json")).expect("report.json");
-    let j: serde_json::Value = serde_json::from_str(&report).expect("report.json parses");
+    let (_dir, case, j) = passing_case(Family::ZooAmp, Case::Hysteresis, 207);
     let num = |k: &str| j[k].as_f64().unwrap_or(f64::NAN);
     let (base, resim) = (num("rmse_base"), num("resim_rmse_taxel_sim"));
     assert!(
@@ -129,14 +127,7 @@ fn an_additive_bouc_wen_under_another_law_reaches_sim_toml() {
 /// the same protocol still is.
 #[test]
 fn a_node_only_a_fold_that_extrapolates_shows_is_not_unexplained() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let case = Case::Hysteresis;
-    let row =
-        run_case_in(Family::ZooHys, case, 249, 300.0, Some(dir.path())).expect("diagnose runs");
-    assert!(row.pass, "verdict {} named {:?}", row.verdict, row.named);
-    let report = dir.path().join(case.slug()).join("report.json");
-    let report = std::fs::read_to_string(report).expect("report.json");
-    let j: serde_json::Value = serde_json::from_str(&report).expect("report.json parses");
+    let (_dir, _, j) = passing_case(Family::ZooHys, Case::Hysteresis, 249);
     assert_eq!(
         j["unexplained_on_peak_folds"],
         serde_json::Value::Bool(true)
@@ -150,14 +141,7 @@ fn a_node_only_a_fold_that_extrapolates_shows_is_not_unexplained() {
 /// information gain, its rest and loaded betas apart) and is dropped; the creep keeps its.
 #[test]
 fn an_effect_only_a_fold_that_extrapolates_shows_is_dropped() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let case = Case::Creep;
-    let row =
-        run_case_in(Family::ZooHys, case, 269, 300.0, Some(dir.path())).expect("diagnose runs");
-    assert!(row.pass, "verdict {} named {:?}", row.verdict, row.named);
-    let report = dir.path().join(case.slug()).join("report.json");
-    let report = std::fs::read_to_string(report).expect("report.json");
-    let j: serde_json::Value = serde_json::from_str(&report).expect("report.json parses");
+    let (_dir, _, j) = passing_case(Family::ZooHys, Case::Creep, 269);
     let looks: Vec<(String, bool)> = j["backward"]
         .as_array()
         .expect("backward is a list")
