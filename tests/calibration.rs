@@ -1,6 +1,7 @@
 //! `taxel calibrator eval` runs the same code as the live pipeline: replaying an object
 //! recording through the real processes (publisher replay -> estimator with the curvature
-//! model -> calibrator) gives exactly the forces the offline protocol computes.
+//! model -> calibrator) gives exactly the forces the offline protocol computes, on every frame
+//! the live calibrator served with the zero the offline protocol uses there.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -117,19 +118,21 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
     );
     p.finish(publisher, Duration::from_secs(60));
     p.stop(&[calibrator, estimator, logger]);
-    let mut live = BTreeMap::new();
-    // The frame that completes a no-load window gets the new zero or not depending on which
-    // process handles it first (offline: it does); those frames are not compared.
-    let mut windows = std::collections::BTreeSet::new();
+    // Live, a frame is calibrated with the zero the calibrator holds when the frame arrives:
+    // under load the estimator may publish a window's zero a few frames after the frame that
+    // completed it, or time a window differently (its intervals are in capture time, which
+    // the replay stamps in real time). Each live force names its zero (`zero_age_s` back from
+    // its capture time to the window's end), and the frames whose zero is the one offline
+    // serves at that frame are compared, bit for bit.
+    let mut estimates = BTreeMap::new(); // window end (capture ns) -> seq
+    let mut live = Vec::new();
     for r in RecordFileReader::open(Path::new(&rec_file)).expect("record file") {
-        if let Record::Curvature(e) = r {
-            windows.insert(e.seq);
-            continue;
-        }
-        if let Record::Force(f) = r {
-            if f.flags & taxel_msgs::force_flags::NO_BASELINE == 0 {
-                live.insert(f.seq, (f.total_force_n, f.block_force_n[0]));
+        match r {
+            Record::Curvature(e) => {
+                estimates.insert(e.t_capture_ns, e.seq);
             }
+            Record::Force(f) if f.flags & taxel_msgs::force_flags::NO_BASELINE == 0 => live.push(f),
+            _ => {}
         }
     }
     assert!(
@@ -138,23 +141,62 @@ fn live_replay_gives_the_same_forces_as_offline_eval() {
         live.len(),
         rec.len()
     );
+    assert!(
+        estimates.len() > 1,
+        "the object's rests re-zero: {estimates:?}"
+    );
+    let zero_of = |f: &taxel_msgs::ForceSample| {
+        let end = f.t_capture_ns as i128 - (f.zero_age_s as f64 * 1e9).round() as i128;
+        let (t, seq) = estimates
+            .iter()
+            .min_by_key(|(t, _)| (**t as i128 - end).abs())
+            .expect("estimates");
+        // zero_age_s is an f32 of seconds: microseconds off, frames are 2.5 ms apart.
+        assert!(
+            (*t as i128 - end).abs() < 200_000,
+            "frame {}: no window ends {} s before it",
+            f.seq,
+            f.zero_age_s
+        );
+        *seq as usize
+    };
     // The whole array is the headline; the central block is scored beside it.
     assert_eq!(report.blocks.len(), 2);
     let (array, center) = (&report.blocks[0].forces, &report.blocks[1].forces);
     assert_eq!(report.headline, taxel_evaluation::protocol::Headline::Array);
+    let agreed = estimates
+        .values()
+        .filter(|s| report.zeros.contains(&(**s as usize)))
+        .count();
+    assert!(
+        agreed > 1,
+        "live windows {:?}, offline {:?}",
+        estimates.values(),
+        report.zeros
+    );
     let mut compared = 0;
-    assert!(windows.len() > 1, "the object's rests re-zero: {windows:?}");
-    for (seq, (total, block)) in live.iter().filter(|(s, _)| !windows.contains(s)) {
-        let (a, c) = (array[*seq as usize].0, center[*seq as usize].0);
-        assert_eq!(
-            *total, a,
-            "frame {seq}: live array {total} N, offline {a} N"
-        );
-        assert_eq!(
-            *block, c,
-            "frame {seq}: live block {block} N, offline {c} N"
-        );
+    for f in &live {
+        let seq = f.seq as usize;
+        let offline_zero = report.zeros.iter().rev().find(|z| **z <= seq);
+        if offline_zero != Some(&zero_of(f)) {
+            continue;
+        }
+        let (a, c) = (array[seq].0, center[seq].0);
+        let (total, block) = (f.total_force_n, f.block_force_n[0]);
+        assert_eq!(total, a, "frame {seq}: live array {total} N, offline {a} N");
+        assert_eq!(block, c, "frame {seq}: live block {block} N, offline {c} N");
         compared += 1;
     }
-    assert!(compared > 1000);
+    eprintln!(
+        "{compared} of {} live frames compared; windows: {} live, {} offline, {agreed} in both",
+        live.len(),
+        estimates.len(),
+        report.zeros.len()
+    );
+    // Races touch a few frames after a window; most are served the same zero.
+    assert!(
+        compared > 1000 && compared * 4 > live.len() * 3,
+        "{compared} of {} live frames had the offline zero",
+        live.len()
+    );
 }

@@ -118,6 +118,9 @@ pub struct Report {
     pub curvature_given: bool,
     /// Frame index from which frames are scored (the curvature estimate, or the first force).
     pub estimate_at: usize,
+    /// Frames that completed a no-load window, in order: each re-zeroed the calibration from
+    /// that frame on (live, the same windows end at the same `seq`).
+    pub zeros: Vec<usize>,
     pub headline: Headline,
     /// The headline block's levels and forces (copies of `blocks`' entry).
     pub levels: Vec<LevelResult>,
@@ -385,11 +388,13 @@ pub fn evaluate_with(
         side.set_known(c);
     }
     let mut estimate: Option<(f64, f64, usize)> = given.map(|c| (c, 0.0, 0));
+    let mut zeros = Vec::new();
     let n = rec.len();
     let mut forces = [Vec::with_capacity(n), Vec::with_capacity(n)];
     let mut statics = [Vec::with_capacity(n), Vec::with_capacity(n)];
     for (i, frame) in frames(rec, g).enumerate() {
         if let Some(e) = estimator.push(&frame)? {
+            zeros.push(i);
             // An estimate serves from the frame that completed its window on (live, that frame
             // gets it or not depending on which process handles it first). Every no-load
             // window re-zeroes, as live; with a predicted curvature the first window's
@@ -467,6 +472,7 @@ pub fn evaluate_with(
         curvature_sd_m1: c_sd,
         curvature_given: given.is_some(),
         estimate_at: at,
+        zeros,
         headline,
         levels: head.levels,
         overall: head.overall,
