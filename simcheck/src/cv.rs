@@ -40,8 +40,9 @@ pub struct Cv {
     pub rest_block_sse: Vec<f64>,
     /// The configuration fitted on each fold's training half.
     pub fits: [Config; 2],
-    /// The residual's colour, computed when first needed (see [`NoiseModel::colour`]).
-    pub colour: std::sync::OnceLock<NoiseModel>,
+    /// The residual's colour, seen at short and long lags, computed when first needed (see
+    /// [`NoiseModel::colours`]).
+    pub colour: std::sync::OnceLock<[NoiseModel; 2]>,
 }
 
 impl Cv {
@@ -260,7 +261,7 @@ pub fn compare(
     let rank_z = signed_rank_z(&d);
     // The evidence is the fall in held-out SSE measured against the variance the change `d`
     // sees in what the richer model leaves (its held-out residual's own colour over time and
-    // across nodes, `NoiseModel::colour`) and in the noise at rest, whichever is larger:
+    // across nodes, `NoiseModel::colours`) and in the noise at rest, whichever is larger:
     // `n_eff = SSE_1 / seen` node-samples. White noise independent on every node counts every
     // node-sample; a leftover that nodes share counts about once per time sample (nodes share
     // the stimulus and its errors, and summing per-node evidence then lets a flexible per-node
@@ -281,10 +282,10 @@ pub fn compare(
             crate::parallel::join(
                 || noise.seen_by(&d, n),
                 || {
-                    let colour = after
+                    let [short, long] = after
                         .colour
-                        .get_or_init(|| NoiseModel::colour(ctx, &ca.resid));
-                    colour.seen_by(&d, n)
+                        .get_or_init(|| NoiseModel::colours(ctx, &ca.resid));
+                    short.seen_by(&d, n).max(long.seen_by(&d, n))
                 },
             )
         },

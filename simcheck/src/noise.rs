@@ -20,6 +20,9 @@ use serde::Serialize;
 use crate::context::Context;
 use crate::wander::CommonWander;
 
+/// The longer lag (s) at which [`NoiseModel::colours`] measures a residual's slow part.
+pub const LONG_LAG_S: f64 = 5.0;
+
 /// One node's (or the common mode's) noise: variances and per-sample correlations.
 #[derive(Debug, Clone, Copy, Serialize, Default)]
 pub struct Parts {
@@ -281,10 +284,24 @@ impl NoiseModel {
     /// averaged down by `n`). What a model leaves is noise to the criterion too: a change is
     /// measured against this as well as against the noise (see `cv::compare`), so a leftover
     /// that moves every node together, or slowly, does not count as many independent samples.
-    pub fn colour(ctx: &Context, resid: &[f64]) -> NoiseModel {
+    /// Two views: the slow part measured at lags of 1 and 2 s, and at 5 and 10 s
+    /// ([`LONG_LAG_S`]), where a wander of tens of seconds still shows (at 1 and 2 s it looks
+    /// a few seconds long, and a slow change would count it many times over); a change is
+    /// measured against the larger.
+    pub fn colours(ctx: &Context, resid: &[f64]) -> [NoiseModel; 2] {
+        let (short, long) = crate::parallel::join(
+            || Self::colour_at(ctx, resid, 1.0),
+            || Self::colour_at(ctx, resid, LONG_LAG_S),
+        );
+        [short, long]
+    }
+
+    /// [`NoiseModel::colours`]' view with the slow part measured at lags of `lag_s` and twice
+    /// that.
+    pub fn colour_at(ctx: &Context, resid: &[f64], lag_s: f64) -> NoiseModel {
         let ds = ctx.ds;
         let (len, n) = (ds.len(), ds.n);
-        let big = ((1.0 / ds.dt()).round() as usize).clamp(3, (len / 8).max(3));
+        let big = ((lag_s / ds.dt()).round() as usize).clamp(3, (len / 8).max(3));
         let lags = [0, 1, 2, big, 2 * big];
         // Each node's parts, and the mean's beside them.
         let (nodes, m) = crate::parallel::join(
@@ -474,6 +491,31 @@ mod tests {
         let (sf, ss) = (one.seen_by(&fast, 1), one.seen_by(&slow, 1));
         assert!(sf < 1.01, "{sf}");
         assert!(ss > 100.0, "{ss}");
+    }
+
+    #[test]
+    fn a_wander_of_tens_of_seconds_beside_a_faster_part_is_seen_at_the_long_lags() {
+        // White 1, a part of 2 s (variance 2) and a wander of 20 s (variance 2), at 100 Hz.
+        let ds = crate::testdata::presses_with_rest(100.0);
+        let ctx = Context::new(&ds);
+        let mut rng = Rng::new(5, 1);
+        let (r1, r2) = ((-0.01f64 / 2.0).exp(), (-0.01f64 / 20.0).exp());
+        let (mut a, mut b) = (0.0, 0.0);
+        let x: Vec<f64> = (0..ds.len())
+            .map(|_| {
+                a = r1 * a + (2.0 * (1.0 - r1 * r1)).sqrt() * rng.normal();
+                b = r2 * b + (2.0 * (1.0 - r2 * r2)).sqrt() * rng.normal();
+                rng.normal() + a + b
+            })
+            .collect();
+        let [short, long] = NoiseModel::colours(&ctx, &x);
+        // A change held for 100 s, against the variance the true covariance gives it.
+        let d = vec![1.0; 10_000];
+        let dd = d.len() as f64;
+        let truth = 1.0 + 2.0 * (ar_quadratic(&d, r1) + ar_quadratic(&d, r2)) / dd;
+        let (s, l) = (short.seen_by(&d, 1), long.seen_by(&d, 1));
+        assert!(l > 0.7 * truth && l < 1.3 * truth, "{truth} {l}");
+        assert!(s < 0.6 * truth, "{truth} {s}");
     }
 
     #[test]
