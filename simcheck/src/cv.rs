@@ -261,7 +261,8 @@ pub fn compare(
     let rank_z = signed_rank_z(&d);
     // The evidence is the fall in held-out SSE measured against the variance the change `d`
     // sees in what the richer model leaves (its held-out residual's own colour over time and
-    // across nodes, `NoiseModel::colours`) and in the noise at rest, whichever is larger:
+    // across nodes, at short and long lags: `NoiseModel::colours`) and in the noise at rest,
+    // whichever is largest:
     // `n_eff = SSE_1 / seen` node-samples. White noise independent on every node counts every
     // node-sample; a leftover that nodes share counts about once per time sample (nodes share
     // the stimulus and its errors, and summing per-node evidence then lets a flexible per-node
