@@ -2,7 +2,6 @@
 //! blocks, add the best accepted one and repeat, then drop any effect the others made
 //! unnecessary; finally check what structure is left and say where it is.
 
-use std::collections::BTreeMap;
 use std::time::Instant;
 
 use serde::Serialize;
@@ -172,24 +171,19 @@ fn diagnose_on_pool(
     let screen = ctx.coarser(crate::screen::FACTOR);
     // Built only if the selection moves to them (two more copies of the recording's views).
     let shared = std::cell::OnceCell::new();
-    let mut sel = crate::selection::Selection {
+    let views = crate::selection::Views {
         ctx: &ctx,
         screen: &screen,
         shared: &shared,
-        moved: false,
+    };
+    let mut sel = crate::selection::Selection::new(
+        views,
         ev_n,
         cfg0,
-        cur: start_fit,
-        cur_cv: start_cv.clone(),
-        trials: Vec::new(),
-        backward: Vec::new(),
-        last_fits: BTreeMap::new(),
-        last: None,
-        fixed: BTreeMap::new(),
+        (start_fit, start_cv.clone()),
         noise,
-        spline_m: SPLINE_SIZES[0],
         progress,
-    };
+    );
     drop(sp);
     // Round 0: the static law (saturation against the start model's law, then the flexible
     // law). What the effects are tested against is the best static law.
@@ -506,24 +500,20 @@ mod tests {
             let start_fit = fit_all(&ctx, std::slice::from_ref(&cfg0), &bp, ev_n);
             let screen = ctx.coarser(crate::screen::FACTOR);
             let shared = std::cell::OnceCell::new();
-            let mut sel = crate::selection::Selection {
+            let views = crate::selection::Views {
                 ctx: &ctx,
                 screen: &screen,
                 shared: &shared,
-                moved: false,
+            };
+            let noise = NoiseModel::estimate_with(&ctx, &start_cv.resid, Some(wander));
+            let mut sel = crate::selection::Selection::new(
+                views,
                 ev_n,
                 cfg0,
-                cur: start_fit,
-                cur_cv: start_cv.clone(),
-                trials: Vec::new(),
-                backward: Vec::new(),
-                last_fits: BTreeMap::new(),
-                last: None,
-                fixed: BTreeMap::new(),
-                noise: NoiseModel::estimate_with(&ctx, &start_cv.resid, Some(wander)),
-                spline_m: SPLINE_SIZES[0],
-                progress: &|_| {},
-            };
+                (start_fit, start_cv),
+                noise,
+                &|_| {},
+            );
             sel.static_law();
             for round in 1..=Options::default().max_effects {
                 if !sel.round(round) {

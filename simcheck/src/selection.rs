@@ -65,6 +65,46 @@ pub(crate) struct Selection<'a> {
     pub(crate) progress: &'a (dyn Fn(Progress) + Sync),
 }
 
+/// The views a [`Selection`] works on: the recording's context and its screening view, and
+/// the cell for the views that share the virgin rest.
+pub(crate) struct Views<'a> {
+    pub(crate) ctx: &'a Context<'a>,
+    pub(crate) screen: &'a Context<'a>,
+    pub(crate) shared: &'a std::cell::OnceCell<Option<(Context<'a>, Context<'a>)>>,
+}
+
+impl<'a> Selection<'a> {
+    /// A selection that starts from `start` (the start model's base fitted on the whole
+    /// recording, `start_cv` held out), with nothing tested yet.
+    pub(crate) fn new(
+        views: Views<'a>,
+        ev_n: usize,
+        cfg0: Config,
+        (start, start_cv): (Config, Cv),
+        noise: NoiseModel,
+        progress: &'a (dyn Fn(Progress) + Sync),
+    ) -> Selection<'a> {
+        Selection {
+            ctx: views.ctx,
+            screen: views.screen,
+            shared: views.shared,
+            moved: false,
+            ev_n,
+            cfg0,
+            cur: start,
+            cur_cv: start_cv,
+            trials: Vec::new(),
+            backward: Vec::new(),
+            last_fits: BTreeMap::new(),
+            last: None,
+            fixed: BTreeMap::new(),
+            noise,
+            spline_m: SPLINE_SIZES[0],
+            progress,
+        }
+    }
+}
+
 impl Selection<'_> {
     /// Round 0, the static law. First the static effects the start model's law family can
     /// express, each tested alone against it: saturation (when the start model has no floor)
