@@ -358,7 +358,7 @@ fn candidate_variants(
         let mut p_pr = no_mix.clone();
         p_pr.extend([Param::HystShare, Param::PreisMu, Param::PreisLnSigma]);
         // The Bouc-Wen state on the total force, per node an amplitude (each node's own
-        // strength of hysteresis) and its growth with the load, started virgin or last
+        // strength of hysteresis) and how it changes with the load, started virgin or last
         // unloaded.
         let additive_bw: Vec<Config> = starts
             .iter()
@@ -390,13 +390,25 @@ fn candidate_variants(
             set_levels: levels.clone(),
             ..base.clone()
         };
+        // Each additive Bouc-Wen form is followed by its twin with a third amplitude per node
+        // (see `Config::hyst_bw_quad`): not ranked as a form of its own, held out only beside
+        // its sibling and kept only where the criterion prefers it (see `Selection`).
+        let quad = |v: &[Config]| -> Vec<Config> {
+            v.iter()
+                .map(|c| Config {
+                    hyst_bw_quad: true,
+                    ..c.clone()
+                })
+                .collect()
+        };
         if cur.hyst_set {
             return vec![
                 (starts, params),
                 (in_load, p_load),
                 (bouc_wen, p_bw),
                 (preisach, p_pr),
-                (additive_bw, p_abw),
+                (additive_bw.clone(), p_abw.clone()),
+                (quad(&additive_bw), p_abw),
             ];
         }
         if cur.hysteresis.is_some() {
@@ -411,8 +423,10 @@ fn candidate_variants(
             (in_load, p_load),
             (bouc_wen, p_bw),
             (preisach, p_pr),
-            (additive_bw, p_abw.clone()),
-            (remnant, p_abw),
+            (additive_bw.clone(), p_abw.clone()),
+            (quad(&additive_bw), p_abw.clone()),
+            (remnant.clone(), p_abw.clone()),
+            (quad(&remnant), p_abw),
         ];
         if !levels.is_empty() {
             all.push((vec![set_on(cur)], law_params(cur)));
@@ -463,7 +477,8 @@ pub struct ParamCount {
 /// The parameters of a hysteresis loop (none without one): in the load path, half-width, mix
 /// and share; or Bouc-Wen saturation, exponent, share; or Preisach half-width, centre, spread
 /// and share. The additive Bouc-Wen: saturation, exponent, asymmetry and start state, and per
-/// node an amplitude and its growth with the load (and a remnant's ramps). The additive plays:
+/// node an amplitude and how it changes with the load, linear or quadratic in the load (and a
+/// remnant's ramps). The additive plays:
 /// half-width and mix, and per node an amplitude.
 fn loop_params(cfg: &Config) -> (usize, usize) {
     if cfg.hysteresis.is_none() {
@@ -475,7 +490,7 @@ fn loop_params(cfg: &Config) -> (usize, usize) {
         } else {
             0
         };
-        (4, 2 + remnant)
+        (4, 2 + usize::from(cfg.hyst_bw_quad) + remnant)
     } else if cfg.hyst_preisach || cfg.hyst_bouc_wen {
         (4, 0)
     } else if cfg.hyst_share.is_some() {
@@ -594,16 +609,16 @@ mod tests {
         // global share (charged three global parameters and none per node), or a Bouc-Wen
         // state in the load path (saturation, share and exponent instead of the plays' mix).
         let hyst = candidates(&ctx, &Config::base(1.0, 0.0), EffectKind::Hysteresis);
-        assert_eq!(hyst.len(), 7);
+        assert_eq!(hyst.len(), 9);
         let (additive, in_load, bouc_wen) = (&hyst[0], &hyst[1], &hyst[2]);
         let preisach = &hyst[3];
         // The additive Bouc-Wen: its start state searched, virgin and unloaded starts, two
-        // amplitudes per node.
+        // amplitudes per node; right after it, its twin with a third.
         let additive_bw = &hyst[4];
         assert!(additive_bw
             .0
             .iter()
-            .all(|c| c.hyst_bouc_wen && c.hyst_share.is_none()));
+            .all(|c| c.hyst_bouc_wen && c.hyst_share.is_none() && !c.hyst_bw_quad));
         assert!(additive_bw.0.iter().any(|c| c.hyst_bw_z0 == -1.0));
         assert!(additive_bw.1.contains(&Param::HystZ0) && !additive_bw.1.contains(&Param::HystMix));
         assert_eq!(
@@ -613,8 +628,31 @@ mod tests {
                 per_node: 2
             }
         );
-        // The additive Bouc-Wen with a remnant: virgin starts, three ramps more per node.
-        let remnant = &hyst[5];
+        let twin = |v: &(Vec<Config>, Vec<Param>), w: &(Vec<Config>, Vec<Param>)| {
+            v.1 == w.1
+                && v.0.len() == w.0.len()
+                && v.0.iter().zip(&w.0).all(|(a, b)| {
+                    !a.hyst_bw_quad
+                        && b.hyst_bw_quad
+                        && *a
+                            == Config {
+                                hyst_bw_quad: false,
+                                ..b.clone()
+                            }
+                })
+        };
+        assert!(twin(additive_bw, &hyst[5]));
+        assert_eq!(
+            n_params(&hyst[5].0[0], EffectKind::Hysteresis),
+            ParamCount {
+                global: 4,
+                per_node: 3
+            }
+        );
+        // The additive Bouc-Wen with a remnant: virgin starts, three ramps more per node; and
+        // its twin.
+        let remnant = &hyst[6];
+        assert!(twin(remnant, &hyst[7]));
         assert!(remnant
             .0
             .iter()
@@ -626,11 +664,11 @@ mod tests {
                 per_node: 2 + crate::effects::REMNANT_RAMPS
             }
         );
-        assert!(hyst[..5]
+        assert!(hyst[..6]
             .iter()
             .all(|v| v.0.iter().all(|c| !c.hyst_remnant)));
         // A set alone: no loop, per node an amplitude per level, nothing searched but the law.
-        let set = &hyst[6].0[0];
+        let set = &hyst[8].0[0];
         assert!(set.hyst_set && set.hysteresis.is_none() && !set.set_levels.is_empty());
         assert_eq!(
             n_params(set, EffectKind::Hysteresis),
@@ -639,12 +677,13 @@ mod tests {
                 per_node: set.set_levels.len()
             }
         );
-        assert_eq!(hyst[6].1, crate::search::law_params(set));
-        assert!(hyst[..6].iter().all(|v| v.0.iter().all(|c| !c.hyst_set)));
+        assert_eq!(hyst[8].1, crate::search::law_params(set));
+        assert!(hyst[..8].iter().all(|v| v.0.iter().all(|c| !c.hyst_set)));
         // On a model with the set: the loops on top of it (no remnant), charged for the loop
         // only; on a model with a loop: the set on top of it.
         let on_set = candidates(&ctx, set, EffectKind::Hysteresis);
-        assert_eq!(on_set.len(), 5);
+        assert_eq!(on_set.len(), 6);
+        assert!(twin(&on_set[4], &on_set[5]));
         assert!(on_set.iter().all(|v| v
             .0
             .iter()

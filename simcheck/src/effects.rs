@@ -124,6 +124,12 @@ pub struct Config {
     /// saturation, -1..=1 (0: the virgin state; -1: last unloaded from a large load). A
     /// recording starts with whatever history the sensor had.
     pub hyst_bw_z0: f64,
+    /// The additive Bouc-Wen form with a third amplitude per node, on `z u^2` (`u = F /
+    /// F_max`), beside `z` and `z u`: how each node's loop changes with the load as a
+    /// quadratic (see [`crate::forms::bouc_wen_gap`]). Not a form of its own: tested on top of
+    /// the additive Bouc-Wen that won, and kept only when it earns its amplitudes (see
+    /// `Selection::quadratic_earned`).
+    pub hyst_bw_quad: bool,
     /// With the additive Bouc-Wen: a remnant, each node's own function of the largest force so
     /// far ([`REMNANT_RAMPS`] ramps, one amplitude each per node). A first load to a new
     /// level leaves the reading at rest raised for good (the Mullins effect of a filled
@@ -194,6 +200,7 @@ impl Config {
             hyst_bw_n: 1.0,
             hyst_bw_asym: 0.0,
             hyst_bw_z0: 0.0,
+            hyst_bw_quad: false,
             hyst_preisach: false,
             hyst_remnant: false,
             hyst_set: false,
@@ -263,6 +270,7 @@ impl Config {
                 c.hyst_bw_n = 1.0;
                 c.hyst_bw_asym = 0.0;
                 c.hyst_bw_z0 = 0.0;
+                c.hyst_bw_quad = false;
                 c.hyst_preisach = false;
                 c.hyst_remnant = false;
                 c.hyst_set = false;
@@ -308,6 +316,7 @@ impl Config {
                 c.hyst_bw_n = from.hyst_bw_n;
                 c.hyst_bw_asym = from.hyst_bw_asym;
                 c.hyst_bw_z0 = from.hyst_bw_z0;
+                c.hyst_bw_quad = from.hyst_bw_quad;
                 c.hyst_preisach = from.hyst_preisach;
                 c.hyst_remnant = from.hyst_remnant;
                 c.hyst_set = from.hyst_set;
@@ -343,6 +352,7 @@ impl Config {
                     && self.hyst_bouc_wen == other.hyst_bouc_wen
                     && self.hyst_preisach == other.hyst_preisach
                     && self.hyst_remnant == other.hyst_remnant
+                    && self.hyst_bw_quad == other.hyst_bw_quad
                     && self.hyst_set == other.hyst_set
                     && self.hysteresis.is_some() == other.hysteresis.is_some()
             }

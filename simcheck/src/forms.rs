@@ -135,11 +135,13 @@ fn bouc_wen_states<'a>(
 /// The additive Bouc-Wen terms (series shared by every node, amplitudes per node): the state
 /// `z` of [`bouc_wen_load`] on the total force (saturating at `r` newtons, exponent of `knee`,
 /// asymmetry `asym`), started at `z0 r` (a recording starts with whatever history the sensor
-/// had, not always the virgin state), and `z F / F_max`. With a fixed load map every node's
-/// own load is the total force times its share, so one state on the total force serves every
-/// node; its two amplitudes carry the node's strength of hysteresis and how its loop grows
-/// with the load (a loop that widens at higher loads; the node's law's slope, which a loop in
-/// the load path is seen through).
+/// had, not always the virgin state), `z u` and `z u^2` with `u = F / F_max`. With a fixed load
+/// map every node's own load is the total force times its share, so one state on the total
+/// force serves every node; its amplitudes carry the node's strength of hysteresis and how its
+/// loop changes with the load, linear or quadratic in the load: a loop that widens at higher
+/// loads, seen through the node's law's slope (a loop in the load path is; with a power law
+/// of exponent `p` that slope goes as `u^(p - 1)`, which one linear term in `u` cannot follow
+/// over the whole range).
 pub fn bouc_wen_gap(
     force: &[f64],
     r: f64,
@@ -147,13 +149,24 @@ pub fn bouc_wen_gap(
     deadband: f64,
     asym: f64,
     z0: f64,
-) -> (Vec<f64>, Vec<f64>) {
+) -> [Vec<f64>; BW_TERMS] {
     let fmax = force.iter().fold(0.0f64, |a, &b| a.max(b)).max(1e-12);
-    bouc_wen_states(force, r, knee, 1.0, deadband, asym, z0 * r)
-        .zip(force)
-        .map(|(z, &fi)| (z, z * fi.max(0.0) / fmax))
-        .unzip()
+    let n = force.len();
+    let mut out: [Vec<f64>; BW_TERMS] = std::array::from_fn(|_| Vec::with_capacity(n));
+    for (z, &fi) in bouc_wen_states(force, r, knee, 1.0, deadband, asym, z0 * r).zip(force) {
+        let u = fi.max(0.0) / fmax;
+        let mut x = z;
+        for term in out.iter_mut() {
+            term.push(x);
+            x *= u;
+        }
+    }
+    out
 }
+
+/// The number of additive Bouc-Wen terms [`bouc_wen_gap`] returns: the form uses the first two,
+/// or all three with [`crate::effects::Config::hyst_bw_quad`].
+pub const BW_TERMS: usize = 3;
 
 /// [`bouc_wen_load`] for `W` nodes at once (their scales `scs`), written out in full: the same
 /// operations on each node's state, interleaved over the nodes so that their recurrences, each
@@ -409,8 +422,8 @@ mod tests {
         f.extend((0..=100).map(|i| i as f64 * 0.1));
         f.extend((0..=100).rev().map(|i| i as f64 * 0.1));
         let knee = Knee::new(1.0);
-        let (virgin, _) = bouc_wen_gap(&f, 1.0, &knee, 0.0, 0.0, 0.0);
-        let (unloaded, zu) = bouc_wen_gap(&f, 1.0, &knee, 0.0, 0.0, -1.0);
+        let [virgin, ..] = bouc_wen_gap(&f, 1.0, &knee, 0.0, 0.0, 0.0);
+        let [unloaded, zu, zuu] = bouc_wen_gap(&f, 1.0, &knee, 0.0, 0.0, -1.0);
         // At rest before the press: 0 for the virgin state, -r for a sensor last unloaded.
         assert_eq!(virgin[5], 0.0);
         assert_eq!(unloaded[5], -1.0);
@@ -418,9 +431,14 @@ mod tests {
         let top = 10 + 100;
         assert!(virgin[top] > 0.99 && unloaded[top] > 0.99);
         assert!(unloaded[f.len() - 1] < -0.99);
-        // The second term is z F / F_max: the state itself at the top, nothing at rest.
+        // The second and third terms are z u and z u^2: the state itself at the top, nothing
+        // at rest, and at half the peak force a half and a quarter of the state.
         assert!((zu[top] - unloaded[top]).abs() < 1e-12);
-        assert_eq!(zu[5], 0.0);
+        assert!((zuu[top] - unloaded[top]).abs() < 1e-12);
+        assert_eq!((zu[5], zuu[5]), (0.0, 0.0));
+        let half = 10 + 50;
+        assert!((zu[half] - 0.5 * unloaded[half]).abs() < 1e-12);
+        assert!((zuu[half] - 0.25 * unloaded[half]).abs() < 1e-12);
     }
 
     #[test]

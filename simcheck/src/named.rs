@@ -80,6 +80,9 @@ pub fn effect_params(
                         if cfg.hyst_remnant {
                             p.insert("remnant".into(), 1.0);
                         }
+                        if cfg.hyst_bw_quad {
+                            p.insert("quadratic".into(), 1.0);
+                        }
                     }
                 } else {
                     p.insert("threshold_n".into(), r);
@@ -214,8 +217,8 @@ pub fn hysteresis_weight(ds: &Dataset, cfg: &Config, theta: &[Vec<f64>]) -> f64 
         .filter(|t| t.len() >= 3 && t[t.len() - 1] > 0.2 * amax && amax > 0.0)
         .map(|t| {
             let a = t[t.len() - 1];
-            // The additive Bouc-Wen's two amplitudes (on z and on z F / F_max) at the mean
-            // loaded force.
+            // The additive Bouc-Wen's amplitudes (on z, z u and, if fitted, z u^2, u = F /
+            // F_max) at the mean loaded force.
             // The remnant's and a set's ramps sit between them and the law's gain.
             let skip = if cfg.hyst_remnant {
                 crate::effects::REMNANT_RAMPS
@@ -226,8 +229,11 @@ pub fn hysteresis_weight(ds: &Dataset, cfg: &Config, theta: &[Vec<f64>]) -> f64 
             } else {
                 0
             };
-            let h = if cfg.hyst_bouc_wen && t.len() >= 4 + skip {
-                t[t.len() - 3 - skip] + t[t.len() - 2 - skip] * fbar / fmax.max(1e-9)
+            let terms = 2 + usize::from(cfg.hyst_bw_quad);
+            let h = if cfg.hyst_bouc_wen && t.len() >= terms + 2 + skip {
+                let u = fbar / fmax.max(1e-9);
+                let first = t.len() - 1 - terms - skip;
+                (0..terms).map(|j| t[first + j] * u.powi(j as i32)).sum()
             } else {
                 t[t.len() - 2 - skip] * (1.0 + cfg.hyst_mix)
             };

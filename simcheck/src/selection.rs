@@ -351,10 +351,16 @@ impl Selection<'_> {
     fn best_variant(&mut self, e: EffectKind) -> Option<Tested> {
         let ds = self.ctx.ds;
         let mut tried: Option<(Tested, Vec<Param>)> = None;
+        // The last additive Bouc-Wen's verdict, for its twin with a third amplitude.
+        let mut sibling: Option<Verdict> = None;
         for (mut starts, params) in self.finalists(e) {
             let Some(first) = starts.first().cloned() else {
                 continue;
             };
+            let twin = first.hyst_bw_quad && !self.cur.hyst_bw_quad;
+            if twin && sibling.is_none() {
+                continue;
+            }
             // The same form's fits from the round before, on the current model: an effect
             // that joined since may have moved the search's landscape, and the new grid of
             // starting points may miss what was found then.
@@ -374,6 +380,19 @@ impl Selection<'_> {
             let k = added_params(&self.cur, first, e);
             let (cv, mut v, screened) = self.held_out(&starts, &params, k);
             signature_check(ds, &self.noise, e, first, &self.cur_cv, &cv, &mut v);
+            // A twin with a third amplitude per node stands in for its sibling only when the
+            // rule accepts it and the criterion, which charges the new amplitudes, prefers it:
+            // the held-out fit alone always favours the richer form.
+            if twin {
+                if !sibling
+                    .take()
+                    .is_some_and(|s| v.accepted && v.ic_gain > s.ic_gain)
+                {
+                    continue;
+                }
+            } else if first.hyst_bouc_wen && first.hyst_share.is_none() && !screened {
+                sibling = Some(v);
+            }
             // Among the variants the rule accepts, the best held-out fit; else the one the
             // criterion likes best (for the report).
             let better = |t: &(Tested, Vec<Param>)| match (v.accepted, t.0 .1.accepted) {
@@ -465,7 +484,8 @@ impl Selection<'_> {
     /// the cost, and only a ranking),
     /// `T ln(SSE) + 2 k ln(T)` with `T` the time samples over ten (a crude charge for the extra
     /// terms). The held-out test then decides between them and the criterion
-    /// charges the one it keeps; a form that a quick fit ranks third or worse rarely wins.
+    /// charges the one it keeps; a form that a quick fit ranks third or worse rarely wins. An
+    /// additive Bouc-Wen kept brings its twin with a third amplitude per node, unranked.
     fn finalists(&self, e: EffectKind) -> Vec<Variant> {
         let all = candidates(self.ctx, &self.cur, e);
         if all.len() <= 2 {
@@ -474,8 +494,22 @@ impl Selection<'_> {
         let _sp = crate::timing::span(format!("    finalists {}", e.name()));
         let t = (self.ctx.ds.len() as f64 / 10.0).max(10.0);
         let n = self.ctx.ds.n;
+        // The twins with a third amplitude (see `Config::hyst_bw_quad`) are not ranked: each
+        // follows its sibling into the held-out test.
+        let is_twin = |v: &Variant| {
+            v.0.first()
+                .is_some_and(|c| c.hyst_bw_quad && !self.cur.hyst_bw_quad)
+        };
+        let mut twins: Vec<Variant> = Vec::new();
         let mut scored: Vec<(f64, Variant)> = all
             .into_iter()
+            .filter_map(|v| {
+                if is_twin(&v) {
+                    twins.push(v);
+                    return None;
+                }
+                Some(v)
+            })
             .map(|(starts, params)| {
                 let Some(first) = starts.first() else {
                     return (f64::INFINITY, (starts, params));
@@ -499,7 +533,23 @@ impl Selection<'_> {
         } else {
             2
         };
-        scored.into_iter().take(keep).map(|(_, v)| v).collect()
+        let mut out = Vec::new();
+        for (_, v) in scored.into_iter().take(keep) {
+            let twin = v.0.first().and_then(|a| {
+                let additive_bw = a.hyst_bouc_wen && a.hyst_share.is_none();
+                twins.iter().position(|w| {
+                    additive_bw
+                        && w.0
+                            .first()
+                            .is_some_and(|b| b.hyst_remnant == a.hyst_remnant)
+                })
+            });
+            out.push(v);
+            if let Some(j) = twin {
+                out.push(twins.swap_remove(j));
+            }
+        }
+        out
     }
 
     /// The accepted candidate joins: all parameters are refitted on the whole recording, from

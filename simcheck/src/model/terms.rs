@@ -24,8 +24,9 @@ pub(super) struct Terms {
     n: usize,
     hyst: Vec<f64>,
     /// The additive hysteresis's further regressors, after `hyst`: the additive Bouc-Wen's
-    /// second (`z F / F_max`), then the remnant's ramps (see [`remnant_ramps`]), then a set's
-    /// (see [`crate::set::ramps`]; the first of them is `hyst` when there is no additive loop).
+    /// second and third (`z u`, and `z u^2` with [`Config::hyst_bw_quad`]; `u = F / F_max`),
+    /// then the remnant's ramps (see [`remnant_ramps`]), then a set's (see
+    /// [`crate::set::ramps`]; the first of them is `hyst` when there is no additive loop).
     hyst2: Vec<Vec<f64>>,
     curv_x: Vec<f64>,
 }
@@ -244,14 +245,14 @@ fn curvature_regressor(ctx: &Context, cfg: &Config) -> Vec<f64> {
 
 /// Hysteresis: two play operators (half-widths r and 4 r) mixed by one global weight, so the
 /// loop's shape (sharp or rounded corners) is fitted, not assumed, one amplitude per node; or a
-/// Bouc-Wen state on the total force ([`bouc_wen_gap`]), two amplitudes per node (the second
-/// term, if any, is the second returned). Each term is centred on its mean at the same force
-/// level, so it only carries the difference between branches (a loop), never a
-/// level-dependent offset the static law should carry.
+/// Bouc-Wen state on the total force ([`bouc_wen_gap`]), two amplitudes per node, three with
+/// [`Config::hyst_bw_quad`] (the further terms, if any, are the second returned). Each term is
+/// centred on its mean at the same force level, so it only carries the difference between
+/// branches (a loop), never a level-dependent offset the static law should carry.
 fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<Vec<f64>>) {
     match cfg.hysteresis.map(|r| ctx.hyst_r(r)) {
         Some(r) if cfg.hyst_share.is_none() && cfg.hyst_bouc_wen => {
-            let (z, zu) = bouc_wen_gap(
+            let [z, zu, zuu] = bouc_wen_gap(
                 &ctx.force_model,
                 r,
                 &Knee::new(cfg.hyst_bw_n),
@@ -261,9 +262,16 @@ fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<Vec<f64>>)
             );
             // A loop that widens with the load is large at the top: centred on a staircase,
             // its steps would be left for the smooth law to miss.
+            let more = if cfg.hyst_bw_quad {
+                vec![zu, zuu]
+            } else {
+                vec![zu]
+            };
             (
                 centre_by_level_smooth(&ctx.force_model, z),
-                vec![centre_by_level_smooth(&ctx.force_model, zu)],
+                more.into_iter()
+                    .map(|x| centre_by_level_smooth(&ctx.force_model, x))
+                    .collect(),
             )
         }
         Some(r) if cfg.hyst_share.is_none() => {
