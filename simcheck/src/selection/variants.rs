@@ -6,7 +6,7 @@
 use super::{Selection, Tested, Variant};
 use crate::candidates::{added_params, candidates, ParamCount};
 use crate::checks::signature_check;
-use crate::cv::{compare, cross_validate, cross_validate_from, Verdict};
+use crate::cv::{compare, cross_validate, cross_validate_from};
 use crate::effects::{Config, EffectKind};
 use crate::search::{train_sse, Param};
 
@@ -15,18 +15,13 @@ impl Selection<'_> {
     /// against the current model: the accepted one with the best held-out fit, or, when none
     /// is accepted, the one the criterion likes best.
     pub(super) fn best_variant(&mut self, e: EffectKind) -> Option<Tested> {
-        let ds = self.ctx.ds;
         let mut tried: Option<(Tested, Vec<Param>)> = None;
-        // The last additive Bouc-Wen's verdict, for its twin with a third amplitude.
-        let mut sibling: Option<Verdict> = None;
+        // The additive Bouc-Wen forms' twins with a third amplitude, for the winner (below).
+        let mut twins: Vec<Variant> = Vec::new();
         for (mut starts, params) in self.finalists(e) {
             let Some(first) = starts.first().cloned() else {
                 continue;
             };
-            let twin = first.hyst_bw_quad && !self.cur.hyst_bw_quad;
-            if twin && sibling.is_none() {
-                continue;
-            }
             // The same form's fits from the round before, on the current model: an effect
             // that joined since may have moved the search's landscape, and the new grid of
             // starting points may miss what was found then.
@@ -37,28 +32,16 @@ impl Selection<'_> {
                     }
                 }
             }
-            let first = &first;
+            if first.hyst_bw_quad && !self.cur.hyst_bw_quad {
+                twins.push((starts, params));
+                continue;
+            }
             // A set must show in the current model's residual (the check its verdict gets
             // anyway, see `checks::signature_check`): without it the test is not run.
             if first.hyst_set && !self.cur.hyst_set && !self.shows_set() {
                 continue;
             }
-            let k = added_params(&self.cur, first, e);
-            let (cv, mut v, screened) = self.held_out(&starts, &params, k);
-            signature_check(ds, &self.noise, e, first, &self.cur_cv, &cv, &mut v);
-            // A twin with a third amplitude per node stands in for its sibling only when the
-            // rule accepts it and the criterion, which charges the new amplitudes, prefers it:
-            // the held-out fit alone always favours the richer form.
-            if twin {
-                if !sibling
-                    .take()
-                    .is_some_and(|s| v.accepted && v.ic_gain > s.ic_gain)
-                {
-                    continue;
-                }
-            } else if first.hyst_bouc_wen && first.hyst_share.is_none() && !screened {
-                sibling = Some(v);
-            }
+            let (cv, v, screened) = self.test_variant(e, &first, &starts, &params);
             // Among the variants the rule accepts, the best held-out fit; else the one the
             // criterion likes best (for the report).
             let better = |t: &(Tested, Vec<Param>)| match (v.accepted, t.0 .1.accepted) {
@@ -72,11 +55,56 @@ impl Selection<'_> {
             }
         }
         let (mut tested, mut params) = tried?;
+        // An additive Bouc-Wen that won (held out in full) meets its twin with a third
+        // amplitude per node, which stands in for it only when the rule accepts it and the
+        // criterion, which charges the new amplitudes, prefers it: the held-out fit alone
+        // always favours the richer form. Only the winner's twin is tested: a third amplitude
+        // refines a loop the data already chose.
+        let won =
+            tested.0.fits.first().filter(|c| {
+                c.hyst_bouc_wen && c.hyst_share.is_none() && !c.hyst_bw_quad && !tested.2
+            });
+        let twin = won.and_then(|w| {
+            twins.into_iter().find_map(|(s, p)| {
+                let first = s.first()?.clone();
+                (first.hyst_remnant == w.hyst_remnant).then_some((first, s, p))
+            })
+        });
+        if let Some((first, starts, twin_params)) = twin {
+            let t = self.test_variant(e, &first, &starts, &twin_params);
+            if !t.2 && t.1.accepted && t.1.ic_gain > tested.1.ic_gain {
+                (tested, params) = (t, twin_params);
+            }
+        }
         if tested.0.fits.first().is_some_and(|c| c.hyst_remnant) {
             (tested, params) = self.remnant_earned(tested, params);
         }
         self.last_fits.insert(e, (tested.0.fits.clone(), params));
         Some(tested)
+    }
+
+    /// A variant of effect `e` (its first starting point, all of them, and the searched
+    /// parameters) held out against the current model (see [`Selection::held_out`]), charged what it adds, its verdict
+    /// through the effect's signature check.
+    fn test_variant(
+        &self,
+        e: EffectKind,
+        first: &Config,
+        starts: &[Config],
+        params: &[Param],
+    ) -> Tested {
+        let k = added_params(&self.cur, first, e);
+        let (cv, mut v, screened) = self.held_out(starts, params, k);
+        signature_check(
+            self.ctx.ds,
+            &self.noise,
+            e,
+            first,
+            &self.cur_cv,
+            &cv,
+            &mut v,
+        );
+        (cv, v, screened)
     }
 
     /// Whether the current model's held-out residual shows a hysteresis set (see
