@@ -391,8 +391,8 @@ fn candidate_variants(
             ..base.clone()
         };
         // Each additive Bouc-Wen form is followed by its twin with a third amplitude per node
-        // (see `Config::hyst_bw_quad`): not ranked as a form of its own, held out only beside
-        // its sibling and kept only where the criterion prefers it (see `Selection`).
+        // (see `Config::hyst_bw_quad`): not ranked as a form of its own, held out only when its
+        // sibling wins, and kept only where the criterion prefers it (see `Selection`).
         let quad = |v: &[Config]| -> Vec<Config> {
             v.iter()
                 .map(|c| Config {
@@ -478,8 +478,7 @@ pub struct ParamCount {
 /// and share; or Bouc-Wen saturation, exponent, share; or Preisach half-width, centre, spread
 /// and share. The additive Bouc-Wen: saturation, exponent, asymmetry and start state, and per
 /// node an amplitude and how it changes with the load, linear or quadratic in the load (and a
-/// remnant's ramps). The additive plays:
-/// half-width and mix, and per node an amplitude.
+/// remnant's ramps). The additive plays: half-width and mix, and per node an amplitude.
 fn loop_params(cfg: &Config) -> (usize, usize) {
     if cfg.hysteresis.is_none() {
         return (0, 0);

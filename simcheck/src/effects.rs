@@ -126,9 +126,9 @@ pub struct Config {
     pub hyst_bw_z0: f64,
     /// The additive Bouc-Wen form with a third amplitude per node, on `z u^2` (`u = F /
     /// F_max`), beside `z` and `z u`: how each node's loop changes with the load as a
-    /// quadratic (see [`crate::forms::bouc_wen_gap`]). Not a form of its own: tested on top of
-    /// the additive Bouc-Wen that won, and kept only when it earns its amplitudes (see
-    /// `Selection::quadratic_earned`).
+    /// quadratic (see [`crate::forms::bouc_wen_gap`]). Not a form of its own but each additive
+    /// Bouc-Wen form's twin: held out only when that form wins a round's test, and kept only
+    /// when the criterion prefers it (see `Selection::best_variant`).
     pub hyst_bw_quad: bool,
     /// With the additive Bouc-Wen: a remnant, each node's own function of the largest force so
     /// far ([`REMNANT_RAMPS`] ramps, one amplitude each per node). A first load to a new

@@ -84,8 +84,8 @@ impl Selection<'_> {
     }
 
     /// A variant of effect `e` (its first starting point, all of them, and the searched
-    /// parameters) held out against the current model (see [`Selection::held_out`]), charged what it adds, its verdict
-    /// through the effect's signature check.
+    /// parameters) held out against the current model (see [`Selection::held_out`]), charged
+    /// what it adds, its verdict through the effect's signature check.
     fn test_variant(
         &self,
         e: EffectKind,
