@@ -489,7 +489,7 @@ fn loop_params(cfg: &Config) -> (usize, usize) {
         } else {
             0
         };
-        (4, 2 + usize::from(cfg.hyst_bw_quad) + remnant)
+        (4, cfg.bw_terms() + remnant)
     } else if cfg.hyst_preisach || cfg.hyst_bouc_wen {
         (4, 0)
     } else if cfg.hyst_share.is_some() {

@@ -337,6 +337,12 @@ impl Config {
         c
     }
 
+    /// The additive Bouc-Wen's amplitudes per node: on `z` and `z u`, and on `z u^2` with
+    /// [`Config::hyst_bw_quad`] (see [`crate::forms::bouc_wen_gap`]).
+    pub fn bw_terms(&self) -> usize {
+        2 + usize::from(self.hyst_bw_quad)
+    }
+
     /// Whether `self` and `other` hold effect `e` in the same form (the fields the search does
     /// not move: creep's terms and kind, the hysteresis form, the drift's kind and knots).
     pub fn same_form(&self, e: EffectKind, other: &Config) -> bool {

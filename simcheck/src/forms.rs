@@ -135,7 +135,8 @@ fn bouc_wen_states<'a>(
 /// The additive Bouc-Wen terms (series shared by every node, amplitudes per node): the state
 /// `z` of [`bouc_wen_load`] on the total force (saturating at `r` newtons, exponent of `knee`,
 /// asymmetry `asym`), started at `z0 r` (a recording starts with whatever history the sensor
-/// had, not always the virgin state), `z u` and `z u^2` with `u = F / F_max`. With a fixed load
+/// had, not always the virgin state), then `z u` and `z u^2` with `u = F / F_max`: the first
+/// `terms` of them (at most 3). With a fixed load
 /// map every node's own load is the total force times its share, so one state on the total
 /// force serves every node; its amplitudes carry the node's strength of hysteresis and how its
 /// loop changes with the load, linear or quadratic in the load: a loop that widens at higher
@@ -149,10 +150,11 @@ pub fn bouc_wen_gap(
     deadband: f64,
     asym: f64,
     z0: f64,
-) -> [Vec<f64>; BW_TERMS] {
+    terms: usize,
+) -> Vec<Vec<f64>> {
     let fmax = force.iter().fold(0.0f64, |a, &b| a.max(b)).max(1e-12);
     let n = force.len();
-    let mut out: [Vec<f64>; BW_TERMS] = std::array::from_fn(|_| Vec::with_capacity(n));
+    let mut out: Vec<Vec<f64>> = (0..terms.min(3)).map(|_| Vec::with_capacity(n)).collect();
     for (z, &fi) in bouc_wen_states(force, r, knee, 1.0, deadband, asym, z0 * r).zip(force) {
         let u = fi.max(0.0) / fmax;
         let mut x = z;
@@ -163,10 +165,6 @@ pub fn bouc_wen_gap(
     }
     out
 }
-
-/// The number of additive Bouc-Wen terms [`bouc_wen_gap`] returns: the form uses the first two,
-/// or all three with [`crate::effects::Config::hyst_bw_quad`].
-pub const BW_TERMS: usize = 3;
 
 /// [`bouc_wen_load`] for `W` nodes at once (their scales `scs`), written out in full: the same
 /// operations on each node's state, interleaved over the nodes so that their recurrences, each
@@ -422,8 +420,10 @@ mod tests {
         f.extend((0..=100).map(|i| i as f64 * 0.1));
         f.extend((0..=100).rev().map(|i| i as f64 * 0.1));
         let knee = Knee::new(1.0);
-        let [virgin, ..] = bouc_wen_gap(&f, 1.0, &knee, 0.0, 0.0, 0.0);
-        let [unloaded, zu, zuu] = bouc_wen_gap(&f, 1.0, &knee, 0.0, 0.0, -1.0);
+        let virgin = bouc_wen_gap(&f, 1.0, &knee, 0.0, 0.0, 0.0, 1).remove(0);
+        let [unloaded, zu, zuu]: [Vec<f64>; 3] = bouc_wen_gap(&f, 1.0, &knee, 0.0, 0.0, -1.0, 3)
+            .try_into()
+            .expect("three terms");
         // At rest before the press: 0 for the virgin state, -r for a sensor last unloaded.
         assert_eq!(virgin[5], 0.0);
         assert_eq!(unloaded[5], -1.0);

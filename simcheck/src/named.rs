@@ -229,7 +229,7 @@ pub fn hysteresis_weight(ds: &Dataset, cfg: &Config, theta: &[Vec<f64>]) -> f64 
             } else {
                 0
             };
-            let terms = 2 + usize::from(cfg.hyst_bw_quad);
+            let terms = cfg.bw_terms();
             let h = if cfg.hyst_bouc_wen && t.len() >= terms + 2 + skip {
                 let u = fbar / fmax.max(1e-9);
                 let first = t.len() - 1 - terms - skip;

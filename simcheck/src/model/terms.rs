@@ -252,27 +252,22 @@ fn curvature_regressor(ctx: &Context, cfg: &Config) -> Vec<f64> {
 fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<Vec<f64>>) {
     match cfg.hysteresis.map(|r| ctx.hyst_r(r)) {
         Some(r) if cfg.hyst_share.is_none() && cfg.hyst_bouc_wen => {
-            let [z, zu, zuu] = bouc_wen_gap(
+            let terms = bouc_wen_gap(
                 &ctx.force_model,
                 r,
                 &Knee::new(cfg.hyst_bw_n),
                 ctx.force_deadband,
                 cfg.hyst_bw_asym,
                 cfg.hyst_bw_z0,
+                cfg.bw_terms(),
             );
             // A loop that widens with the load is large at the top: centred on a staircase,
             // its steps would be left for the smooth law to miss.
-            let more = if cfg.hyst_bw_quad {
-                vec![zu, zuu]
-            } else {
-                vec![zu]
-            };
-            (
-                centre_by_level_smooth(&ctx.force_model, z),
-                more.into_iter()
-                    .map(|x| centre_by_level_smooth(&ctx.force_model, x))
-                    .collect(),
-            )
+            let mut centred = terms
+                .into_iter()
+                .map(|x| centre_by_level_smooth(&ctx.force_model, x));
+            let z = centred.next().unwrap_or_default();
+            (z, centred.collect())
         }
         Some(r) if cfg.hyst_share.is_none() => {
             let narrow = play_gap(&ctx.force_model, r);

@@ -255,27 +255,16 @@ impl Selection<'_> {
 
     /// After the spline joined: each static effect named before, held out without it.
     fn retest_static(&mut self) {
-        let has_kappa = self.ctx.ds.kappa.is_some();
         let named: Vec<EffectKind> = self.fixed.keys().copied().collect();
         for e in named {
             let minus = self.cur.without(e);
-            let cv_minus = cross_validate(
-                self.ctx,
-                std::slice::from_ref(&minus),
-                &refit_params(&minus, has_kappa),
-                self.ev_n,
-            );
+            let cv_minus = self.held_out_model(self.ctx, &minus);
             let k = n_params(&self.cur, e);
             let v = compare(self.ctx, &cv_minus, &self.cur_cv, k, &self.noise);
             if v.keep {
                 self.fixed.insert(e, (cv_minus, v));
             } else {
-                self.cur = fit_all(
-                    self.ctx,
-                    std::slice::from_ref(&minus),
-                    &all_params(&minus, has_kappa),
-                    self.ev_n * 2,
-                );
+                self.cur = self.fit_whole(&minus);
                 self.cur_cv = cv_minus;
                 self.fixed.remove(&e);
             }
@@ -354,21 +343,12 @@ impl Selection<'_> {
     /// rest before the first press (see [`Context::virgin_rest_shared`]); true then.
     fn join(&mut self, fold_fits: &[Config]) -> bool {
         let ctx = self.ctx;
-        let has_kappa = ctx.ds.kappa.is_some();
         let added = fold_fits
             .iter()
             .map(|c| (c, train_sse(ctx, c, &|_| true)))
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .map_or_else(|| self.cur.clone(), |(c, _)| c.clone());
-        let joint = |start: &Config| {
-            fit_all(
-                ctx,
-                std::slice::from_ref(start),
-                &all_params(start, has_kappa),
-                self.ev_n * 2,
-            )
-        };
-        self.cur = joint(&added);
+        self.cur = self.fit_whole(&added);
         // Without the effect just accepted, the base fit may have driven the resistance floor
         // far from where it belongs (to nothing, when a missing sensitivity loss looked like
         // less saturation); the search seldom walks it back that far, and another effect then
@@ -382,7 +362,7 @@ impl Selection<'_> {
                 r_floor_ohm: floor0,
                 ..added.clone()
             };
-            let alt = joint(&reset);
+            let alt = self.fit_whole(&reset);
             if train_sse(ctx, &alt, &|_| true) < train_sse(ctx, &self.cur, &|_| true) {
                 self.cur = alt;
             }
@@ -393,12 +373,7 @@ impl Selection<'_> {
         // parameters per fold: the model they must beat is held out the same way. (Comparing
         // them with the accepted candidate's own cross-validation credited every one of them
         // with what the joint refit gained.)
-        self.cur_cv = cross_validate(
-            self.ctx,
-            std::slice::from_ref(&self.cur),
-            &refit_params(&self.cur, has_kappa),
-            self.ev_n,
-        );
+        self.cur_cv = self.held_out_model(self.ctx, &self.cur);
         moved
     }
 
@@ -432,8 +407,6 @@ impl Selection<'_> {
     /// way: every parameter refitted on each training fold); it is not computed again.
     pub(crate) fn backward(&mut self) -> BTreeMap<EffectKind, (Cv, Verdict)> {
         let ctx = self.ctx;
-        let ds = ctx.ds;
-        let has_kappa = ds.kappa.is_some();
         let mut contributions: BTreeMap<EffectKind, (Cv, Verdict)> = BTreeMap::new();
         loop {
             contributions.clear();
@@ -453,12 +426,7 @@ impl Selection<'_> {
                 let minus = self.cur.without(e);
                 let cv_minus = match &self.last {
                     Some((last, cv)) if *last == e => cv.clone(),
-                    _ => cross_validate(
-                        ctx,
-                        std::slice::from_ref(&minus),
-                        &refit_params(&minus, has_kappa),
-                        self.ev_n,
-                    ),
+                    _ => self.held_out_model(ctx, &minus),
                 };
                 let v = self.kept_verdict(ctx, e, &cv_minus, &self.cur_cv);
                 self.backward.push(Trial {
@@ -469,14 +437,7 @@ impl Selection<'_> {
                     screened: false,
                 });
                 if !v.keep && effects.len() + self.fixed.len() >= 2 {
-                    self.cur = fit_all(
-                        ctx,
-                        std::slice::from_ref(&minus),
-                        &all_params(&minus, has_kappa),
-                        self.ev_n * 2,
-                    );
-                    self.cur_cv = cv_minus;
-                    self.last = None;
+                    self.adopt(&minus, cv_minus);
                     dropped = true;
                     break;
                 }
@@ -541,17 +502,11 @@ impl Selection<'_> {
         if !self.cur.effects().contains(&e) || self.fixed.contains_key(&e) {
             return false;
         }
-        let has_kappa = peak.ds.kappa.is_some();
-        let held_out = |ctx: &Context, c: &Config| {
-            cross_validate(
-                ctx,
-                std::slice::from_ref(c),
-                &refit_params(c, has_kappa),
-                self.ev_n,
-            )
-        };
         let minus = self.cur.without(e);
-        let (cv_cur, cv_minus) = (held_out(peak, &self.cur), held_out(peak, &minus));
+        let (cv_cur, cv_minus) = (
+            self.held_out_model(peak, &self.cur),
+            self.held_out_model(peak, &minus),
+        );
         let v = self.kept_verdict(peak, e, &cv_minus, &cv_cur);
         self.backward.push(Trial {
             round: self.trials.iter().map(|t| t.round).max().unwrap_or(0),
@@ -563,15 +518,8 @@ impl Selection<'_> {
         if v.keep {
             return false;
         }
-        let ctx = self.ctx;
-        self.cur = fit_all(
-            ctx,
-            std::slice::from_ref(&minus),
-            &all_params(&minus, has_kappa),
-            self.ev_n * 2,
-        );
-        self.cur_cv = held_out(ctx, &minus);
-        self.last = None;
+        let cv_minus = self.held_out_model(self.ctx, &minus);
+        self.adopt(&minus, cv_minus);
         true
     }
 
@@ -584,18 +532,12 @@ impl Selection<'_> {
             return false;
         };
         let ctx = self.ctx;
-        let has_kappa = ctx.ds.kappa.is_some();
         let minus = Config {
             law: Law::Power,
             exponent: self.cfg0.exponent,
             ..self.cur.clone()
         };
-        let cv_minus = cross_validate(
-            ctx,
-            std::slice::from_ref(&minus),
-            &refit_params(&minus, has_kappa),
-            self.ev_n,
-        );
+        let cv_minus = self.held_out_model(ctx, &minus);
         let v = compare(
             ctx,
             &cv_minus,
@@ -613,14 +555,28 @@ impl Selection<'_> {
             seconds: 0.0,
             screened: false,
         });
-        self.cur = fit_all(
-            ctx,
-            std::slice::from_ref(&minus),
-            &all_params(&minus, has_kappa),
-            self.ev_n * 2,
-        );
-        self.cur_cv = cv_minus;
-        self.last = None;
+        self.adopt(&minus, cv_minus);
         true
+    }
+
+    /// `c` held out on `ctx`'s folds the way the current model is: every parameter refitted
+    /// on each training half.
+    fn held_out_model(&self, ctx: &Context, c: &Config) -> Cv {
+        let params = refit_params(c, ctx.ds.kappa.is_some());
+        cross_validate(ctx, std::slice::from_ref(c), &params, self.ev_n)
+    }
+
+    /// `c` with every parameter refitted on the whole recording, from itself.
+    fn fit_whole(&self, c: &Config) -> Config {
+        let params = all_params(c, self.ctx.ds.kappa.is_some());
+        fit_all(self.ctx, std::slice::from_ref(c), &params, self.ev_n * 2)
+    }
+
+    /// The model becomes `c` (an effect or the spline dropped), refitted on the whole
+    /// recording, with `cv` its held-out result; the model before it is not at hand.
+    fn adopt(&mut self, c: &Config, cv: Cv) {
+        self.cur = self.fit_whole(c);
+        self.cur_cv = cv;
+        self.last = None;
     }
 }
