@@ -3,6 +3,7 @@
 //! and adds the best accepted one, and the backward pass drops any effect the others made
 //! unnecessary.
 
+mod reform;
 mod variants;
 
 use std::collections::BTreeMap;
@@ -64,6 +65,9 @@ pub(crate) struct Selection<'a> {
     pub(crate) noise: NoiseModel,
     /// The spline size the criterion liked best in round 0 (tried again in later rounds).
     pub(crate) spline_m: usize,
+    /// Whether a sensitivity loss's per-trial forms were held out in place of the baseline
+    /// shift's form (see `reform`); once only.
+    pub(crate) reformed: bool,
     pub(crate) progress: &'a (dyn Fn(Progress) + Sync),
 }
 
@@ -102,6 +106,7 @@ impl<'a> Selection<'a> {
             fixed: BTreeMap::new(),
             noise,
             spline_m: SPLINE_SIZES[0],
+            reformed: false,
             progress,
         }
     }
@@ -279,6 +284,7 @@ impl Selection<'_> {
         if round >= 2 && self.cur.law == Law::Power && self.spline(round, &[self.spline_m]) {
             self.retest_static();
         }
+        self.reform_sensitivity(round);
         let mut best: Option<Best> = None;
         // Saturation and crosstalk belong to the static law: decided in round 0.
         let todo: Vec<EffectKind> = EffectKind::ALL
