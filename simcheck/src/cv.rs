@@ -160,8 +160,10 @@ pub struct Verdict {
     /// Weaker bar for keeping an effect already in the model (backward pass).
     pub keep: bool,
     /// Hysteresis only: the size of its contribution relative to the residual on slow and on
-    /// fast ramps (see `diagnose::ramp_betas`).
+    /// fast ramps (see `checks::ramp_betas`).
     pub ramp_betas: Option<[f64; 2]>,
+    /// The standard errors of `ramp_betas` (see `checks::ramp_betas_se`).
+    pub ramp_betas_se: Option<[f64; 2]>,
     /// Hysteresis only: the share of its change that follows the loading direction (see
     /// `checks::loop_share`).
     pub loop_share: Option<f64>,
@@ -333,6 +335,7 @@ pub fn compare(
         },
         keep: rel_gain >= 0.5 * MIN_REL_GAIN && consistent(MIN_KEEP_T) && ic_gain > 0.0,
         ramp_betas: None,
+        ramp_betas_se: None,
         loop_share: None,
         loop_removed: None,
         gain_betas: None,
