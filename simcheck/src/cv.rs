@@ -89,6 +89,15 @@ pub fn cross_validate_from(
             }
         }
     });
+    let [(a, _), (b, _)] = folds;
+    cv_of(ctx, resid, [a, b])
+}
+
+/// The held-out result of a residual (per sample and node, 0 where unusable) and the fits
+/// that made it: its sums per block, per node and at rest.
+pub fn cv_of(ctx: &Context, resid: Vec<f64>, fits: [Config; 2]) -> Cv {
+    let ds = ctx.ds;
+    let n = ds.n;
     // The sums per block and per node, each over its samples in time order (blocks side by
     // side, then nodes side by side): the same sums, in the same order, as one pass would make.
     let rest_limit = 0.02 * ds.max_force();
@@ -120,7 +129,6 @@ pub fn cross_validate_from(
             .fold(0.0, |s, r2| s + r2)
     });
     let sse = block_sse.iter().sum();
-    let [(a, _), (b, _)] = folds;
     Cv {
         resid,
         sse,
@@ -128,7 +136,7 @@ pub fn cross_validate_from(
         block_sse,
         node_sse,
         rest_block_sse,
-        fits: [a, b],
+        fits,
         colour: std::sync::OnceLock::new(),
     }
 }

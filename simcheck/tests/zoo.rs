@@ -221,3 +221,13 @@ fn a_sensitivity_loss_takes_a_factor_per_mounting_once_the_shift_has_joined() {
     let reform = "curvature_sensitivity (one factor per trial, in place of the shift's form)";
     assert_eq!(accepted(&j, reform), Some(true));
 }
+
+/// zoo-hys creep, seed 264 (a spent hold-out seed): each node creeps by its own amount, the
+/// tool's creep by one. Beside creep a loop took 4.8 % of what was left (block t 4.4) and was
+/// named; held against creep with a strength per node it loses, and creep is named alone.
+#[test]
+fn a_loop_beside_creep_must_beat_creep_with_a_strength_per_node() {
+    let (_dir, _, j) = passing_case(Family::ZooHys, Case::Creep, 264);
+    let against = "hysteresis (against creep with a strength per node)";
+    assert_eq!(accepted(&j, against), Some(false));
+}

@@ -3,6 +3,7 @@
 //! and adds the best accepted one, and the backward pass drops any effect the others made
 //! unnecessary.
 
+mod node_creep;
 mod reform;
 mod variants;
 
@@ -305,9 +306,16 @@ impl Selection<'_> {
             });
             let tc = Instant::now();
             let sp = crate::timing::span(format!("  test {}", e.name()));
-            let Some((cv, v, screened)) = self.best_variant(e) else {
+            let Some(mut t) = self.best_variant(e) else {
                 continue;
             };
+            // A loop beside creep must beat creep with a strength per node (see `node_creep`).
+            let against = if e == EffectKind::Hysteresis {
+                self.loop_beats_node_creep(round, &mut t)
+            } else {
+                None
+            };
+            let (cv, v, screened) = t;
             drop(sp);
             self.trials.push(Trial {
                 round,
@@ -316,6 +324,7 @@ impl Selection<'_> {
                 seconds: tc.elapsed().as_secs_f64(),
                 screened,
             });
+            self.trials.extend(against);
             if v.accepted && best.as_ref().is_none_or(|b| v.rel_gain > b.2.rel_gain) {
                 best = Some((vec![e], cv.clone(), v));
             }
