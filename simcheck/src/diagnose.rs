@@ -327,11 +327,7 @@ fn diagnose_on_pool(
                 &noise,
                 opts.unexplained_ratio,
             );
-            let shown = |k: &usize| again.iter().any(|u| u.nodes.contains(k));
-            unexplained
-                .into_iter()
-                .filter(|u| u.nodes.iter().all(shown))
-                .collect()
+            shown_again(unexplained, &again)
         }
     };
     drop(sp);
@@ -437,6 +433,20 @@ fn start_config(ctx: &Context, start: &SensorModel) -> Config {
     Config::base(start.material.exponent, floor)
 }
 
+/// The structure `unexplained` on the selection's folds that the second look (`again`, on
+/// folds that share the peak) shows too: an entry stays when every one of its nodes is
+/// unexplained there as well.
+fn shown_again(
+    unexplained: Vec<crate::unexplained::Unexplained>,
+    again: &[crate::unexplained::Unexplained],
+) -> Vec<crate::unexplained::Unexplained> {
+    let shown = |k: &usize| again.iter().any(|u| u.nodes.contains(k));
+    unexplained
+        .into_iter()
+        .filter(|u| u.nodes.iter().all(shown))
+        .collect()
+}
+
 /// When the selection's folds leave one of them under [`crate::context::FOLD_PEAK_SHARE`] of
 /// the peak load: folds that share it (see [`Context::peak_shared`]; also sharing the rest
 /// before the first press when the selection `moved` to such folds), with the base and the
@@ -470,6 +480,25 @@ mod tests {
     use crate::data::ReadoutGiven;
     use crate::refworld::Case;
     use crate::zoo::Family;
+
+    #[test]
+    fn structure_stays_unexplained_only_where_the_second_look_shows_it_too() {
+        use crate::unexplained::Unexplained;
+        let at = |nodes: Vec<usize>| Unexplained {
+            nodes,
+            t_s: [0.0, 1.0],
+            description: String::new(),
+        };
+        // Node 10 only on the plain folds; node 9 on both; the array (0-2) where one of its
+        // nodes is not shown again.
+        let first = vec![at(vec![10]), at(vec![9]), at(vec![0, 1, 2])];
+        let again = vec![at(vec![9]), at(vec![0, 1])];
+        let kept: Vec<Vec<usize>> = shown_again(first, &again)
+            .into_iter()
+            .map(|u| u.nodes)
+            .collect();
+        assert_eq!(kept, vec![vec![9]]);
+    }
 
     /// zoo-hys, seed 269 (a spent hold-out seed), creep alone: the plain folds leave one never
     /// trained near the peak load. The selection named a latent drift beside the creep there

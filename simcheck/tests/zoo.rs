@@ -126,17 +126,22 @@ fn an_additive_bouc_wen_under_another_law_reaches_sim_toml() {
 }
 
 /// zoo-hys, seed 249 (a spent hold-out seed): the plain folds leave the odd one never trained
-/// above 89 % of the peak load, and in the loop's case node 10, extrapolated there, was named
-/// `unexplained`. Checked on folds that share the peak, it is not; a thread that breaks under
-/// the same protocol still is.
+/// above 89 % of the peak load. In the loop's case node 10, extrapolated there with the play
+/// loop, was named `unexplained` until folds that share the peak were looked at too (held-out
+/// RMSE 11.12 counts); since the rate check counts its betas' uncertainty (2026-11-29) the
+/// additive Bouc-Wen with its third amplitude is kept (8.94) and no node is left. A thread that
+/// breaks under the same protocol is still `unexplained` after the second look. (Which entries
+/// the second look keeps: `diagnose`'s unit test.)
 #[test]
-fn a_node_only_a_fold_that_extrapolates_shows_is_not_unexplained() {
+fn a_thread_that_breaks_stays_unexplained_on_folds_that_share_the_peak() {
     let (_dir, _, j) = passing_case(Family::ZooHys, Case::Hysteresis, 249);
+    let rmse = j["rmse_final"].as_f64().unwrap_or(f64::NAN);
+    assert!(rmse < 10.0, "held-out RMSE {rmse}");
+    let (_dir, _, j) = passing_case(Family::ZooHys, Case::BrokenThread, 249);
     assert_eq!(
         j["unexplained_on_peak_folds"],
         serde_json::Value::Bool(true)
     );
-    check_seed(Family::ZooHys, Case::BrokenThread, 249);
 }
 
 /// zoo-hys, seed 269 (a spent hold-out seed), thermal drift with its temperature recorded: the
