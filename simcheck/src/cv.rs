@@ -170,7 +170,8 @@ pub struct Verdict {
     /// Hysteresis only: the size of its contribution relative to the residual on slow and on
     /// fast ramps (see `checks::ramp_betas`).
     pub ramp_betas: Option<[f64; 2]>,
-    /// The standard errors of `ramp_betas` (see `checks::ramp_betas_se`).
+    /// The standard errors of `ramp_betas` (see `checks::ramp_betas_se`), when their ratio
+    /// lies outside `checks::RATE_RATIO` (only then do they decide).
     pub ramp_betas_se: Option<[f64; 2]>,
     /// Hysteresis only: the share of its change that follows the loading direction (see
     /// `checks::loop_share`).
