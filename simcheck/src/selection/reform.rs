@@ -12,7 +12,7 @@
 
 use std::time::Instant;
 
-use super::Selection;
+use super::{Selection, Tested};
 use crate::candidates::{added_params, candidates};
 use crate::diagnose::Trial;
 use crate::effects::EffectKind;
@@ -34,13 +34,13 @@ impl Selection<'_> {
         }
         self.reformed = true;
         let tc = Instant::now();
-        let mut best: Option<(crate::cv::Cv, crate::cv::Verdict)> = None;
+        let mut best: Option<Tested> = None;
         for (starts, params) in candidates(self.ctx, &self.cur, e) {
             let Some(first) = starts.first().filter(|c| c.curv_trials.is_some()) else {
                 continue;
             };
             let k = added_params(&self.cur, first, e);
-            let (cv, v, _) = self.held_out(&starts, &params, k);
+            let (cv, v, screened) = self.held_out(&starts, &params, k);
             let better = best
                 .as_ref()
                 .is_none_or(|b| match (v.accepted, b.1.accepted) {
@@ -49,10 +49,10 @@ impl Selection<'_> {
                     _ => v.ic_gain > b.1.ic_gain,
                 });
             if better {
-                best = Some((cv, v));
+                best = Some((cv, v, screened));
             }
         }
-        let Some((cv, v)) = best else {
+        let Some((cv, v, screened)) = best else {
             return false;
         };
         let per_node = cv.fits[0].curv_per_node.is_some();
@@ -64,7 +64,7 @@ impl Selection<'_> {
             ),
             verdict: v,
             seconds: tc.elapsed().as_secs_f64(),
-            screened: false,
+            screened,
         });
         if !v.accepted {
             return false;
