@@ -97,8 +97,8 @@ pub struct Diagnosis {
     pub responsiveness: Vec<f64>,
     pub direction: Vec<i8>,
     /// Whether the held-out results (the base's and the final model's) are on the folds that
-    /// share the rest before the first press: a model that remembers the largest load joined
-    /// (see [`Context::virgin_rest_shared`]).
+    /// share the rest before the first press: a model that remembers the sensor's state
+    /// before the recording joined (see [`Context::virgin_rest_shared`]).
     pub virgin_rest_shared: bool,
     /// Whether the nodes the `unexplained` rule named were checked on other folds too, ones
     /// that train on the largest loads (see [`Context::peak_shared`]).

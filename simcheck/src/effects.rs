@@ -235,6 +235,16 @@ impl Config {
         }
     }
 
+    /// Whether the model holds a state from before the recording that only its first
+    /// seconds show: the largest load so far (a set or a remnant, see [`crate::set`]), or the
+    /// additive Bouc-Wen state's start ([`Config::hyst_bw_z0`], fitted). A fold whose
+    /// training blocks all come after the first press never sees it (see
+    /// [`crate::context::Context::virgin_rest_shared`]).
+    pub fn remembers_the_start(&self) -> bool {
+        let bw_start = self.hysteresis.is_some() && self.hyst_bouc_wen && self.hyst_share.is_none();
+        self.hyst_set || self.hyst_remnant || bw_start
+    }
+
     /// Whether effect `e` can still be added: it is not in, or it is hysteresis with a loop
     /// but no set or a set but no loop (see [`Config::hyst_set`]).
     pub fn open_to(&self, e: EffectKind) -> bool {

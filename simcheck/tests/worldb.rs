@@ -59,7 +59,7 @@ fn world_b_creep_is_named() {
     assert_eq!(d.verdict, "explained");
     assert_eq!(named(&d), ["creep"]);
     assert!(d.rmse_final < 0.6 * d.rmse_base);
-    // No model that remembers the largest load joined: the folds stayed where they were.
+    // No model that remembers the state before the recording joined: the folds stayed.
     assert!(!d.virgin_rest_shared);
 }
 

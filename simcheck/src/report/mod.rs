@@ -36,7 +36,8 @@ pub fn write_all(
     if d.virgin_rest_shared {
         notes.push(
             "held out on folds that share the rest before the first press (a model that \
-             remembers the largest load joined): the base's held-out error too"
+             remembers the sensor's state before the recording joined: the largest load so \
+             far, or a loop's start state): the base's held-out error too"
                 .into(),
         );
     }

@@ -382,8 +382,7 @@ impl Selection<'_> {
                 self.cur = alt;
             }
         }
-        let moved = self.cur.hyst_set || self.cur.hyst_remnant;
-        let moved = moved && self.move_folds();
+        let moved = self.cur.remembers_the_start() && self.move_folds();
         // The next round's candidates start from the jointly refitted model and refit all its
         // parameters per fold: the model they must beat is held out the same way. (Comparing
         // them with the accepted candidate's own cross-validation credited every one of them
