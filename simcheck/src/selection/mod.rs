@@ -42,7 +42,8 @@ pub(crate) struct Selection<'a> {
     /// The same two views with the rest before the first press shared by both folds (see
     /// [`Context::virgin_rest_shared`]), built when first needed (None inside when the folds
     /// would not change): the selection moves to them, for good, once a model that remembers
-    /// the largest load (a set or a remnant) joins.
+    /// the sensor's state before the recording (a set, a remnant, an additive Bouc-Wen's
+    /// start: [`Config::remembers_the_start`]) joins.
     pub(crate) shared: &'a std::cell::OnceCell<Option<(Context<'a>, Context<'a>)>>,
     /// Whether the selection has moved to the shared views.
     pub(crate) moved: bool,
