@@ -190,12 +190,13 @@ impl<'a> Context<'a> {
     /// [`crate::set`]) needs it: a first press that sets the sensor for good leaves the rest
     /// before it unseen by the fold whose training blocks all come after it, and that fold's
     /// prediction of the virgin rest is an extrapolation (on world B's creep + hysteresis case
-    /// it held 60 % of the held-out SSE, and left node 10 `unexplained`). So does the additive
+    /// it held 60 % of the held-out SSE, and left node 10 `unexplained`). So may the additive
     /// Bouc-Wen state's start (zoo-hys's creep + hysteresis, seed 271: the rest before the
     /// first press held 42 % of the held-out SSE, and creep, which a joint refit's new start
     /// state credited with it, was refused). The diagnosis moves to these folds only once
     /// such a model has joined ([`crate::effects::Config::remembers_the_start`], see
-    /// `Selection::join`): every recording without one keeps the folds it always had.
+    /// `Selection::join`; for the start state only when they predict better): every
+    /// recording without one keeps the folds it always had.
     pub fn virgin_rest_shared(&self) -> Option<Context<'a>> {
         let ds = self.ds;
         let first_press = ds.force.iter().position(|&f| f > 0.02 * ds.max_force())?;

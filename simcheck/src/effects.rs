@@ -239,7 +239,9 @@ impl Config {
     /// seconds show: the largest load so far (a set or a remnant, see [`crate::set`]), or the
     /// additive Bouc-Wen state's start ([`Config::hyst_bw_z0`], fitted). A fold whose
     /// training blocks all come after the first press never sees it (see
-    /// [`crate::context::Context::virgin_rest_shared`]).
+    /// [`crate::context::Context::virgin_rest_shared`]); a set or a remnant always moves the
+    /// selection to folds that share that rest, the start state when they predict better
+    /// (`Selection::move_folds_if_better`).
     pub fn remembers_the_start(&self) -> bool {
         let bw_start = self.hysteresis.is_some() && self.hyst_bouc_wen && self.hyst_share.is_none();
         self.hyst_set || self.hyst_remnant || bw_start
