@@ -412,11 +412,12 @@ impl Selection<'_> {
 
     /// An additive Bouc-Wen's fitted start state (see [`Config::remembers_the_start`]): the
     /// selection moves to the folds that share the rest before the first press only when the
-    /// current model predicts the held-out samples better there. A fold that sees only that
-    /// rest, not the first press, fits the start from the rest's level alone, and on zoo-hys's
-    /// loop (training seed 2) the first press then held out at twice the plain folds' RMSE
-    /// (27.8 against 13.6 counts, every node `unexplained`); on zoo-hys 271's creep + loop the
-    /// plain fold that never saw the rest extrapolated it (42 % of the held-out SSE).
+    /// current model predicts the held-out samples better there. Moved whatever they do, on
+    /// zoo-hys's loop (training seed 2) the loop held out at twice the plain folds' RMSE (27.8
+    /// against 13.6 counts, the misfit in about one block, every node `unexplained`; probably
+    /// the fold that sees the rest but not the first press fits the start from the rest's
+    /// level alone); on zoo-hys 271's creep + loop the plain fold that never saw the rest
+    /// extrapolated it (42 % of the held-out SSE).
     fn move_folds_if_better(&mut self) -> bool {
         if self.moved {
             return false;
