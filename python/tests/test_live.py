@@ -49,8 +49,11 @@ class Streams(unittest.TestCase):
             self.assertIn(s.flags.saturated, (True, False))
             self.assertIsInstance(s.flags.no_baseline, bool)
             self.assertGreater(s.t_capture_ns, 0)
+            # Live samples, not a backlog from the pipeline's start (seconds old): a check, not
+            # a latency measurement (`taxel bench` measures that). The bound leaves room for a
+            # loaded machine: under a CI build the adaptive mode's median was 86 ms once.
             ages = [x.age_ns for x in got[5:]]
-            self.assertLess(np.median(ages), 50_000_000, wake)
+            self.assertLess(np.median(ages), 500_000_000, wake)
 
     def test_raw_and_curvature(self):
         raw = self.take(5, stream="raw")
