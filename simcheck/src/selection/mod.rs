@@ -401,13 +401,12 @@ impl Selection<'_> {
         // parameters per fold: the model they must beat is held out the same way. (Comparing
         // them with the accepted candidate's own cross-validation credited every one of them
         // with what the joint refit gained.)
-        if self.cur.hyst_set || self.cur.hyst_remnant {
-            let moved = self.move_folds();
-            self.cur_cv = self.held_out_model(self.ctx, &self.cur);
-            return moved;
-        }
+        // A set or a remnant moves the folds whatever they do; a loop's start state only when
+        // the model predicts better on them (`move_folds_if_better`, after the model is held
+        // out on the current folds).
+        let moved = (self.cur.hyst_set || self.cur.hyst_remnant) && self.move_folds();
         self.cur_cv = self.held_out_model(self.ctx, &self.cur);
-        self.cur.remembers_the_start() && self.move_folds_if_better()
+        moved || (self.cur.remembers_the_start() && self.move_folds_if_better())
     }
 
     /// An additive Bouc-Wen's fitted start state (see [`Config::remembers_the_start`]): the

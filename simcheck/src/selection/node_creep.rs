@@ -60,7 +60,7 @@ impl Selection<'_> {
 
 /// The held-out result `cur` (a model with creep) with each fold's creep contribution scaled
 /// node by node (see the module's description); None without creep.
-pub(crate) fn creep_per_node(ctx: &Context, cur: &Cv) -> Option<Cv> {
+fn creep_per_node(ctx: &Context, cur: &Cv) -> Option<Cv> {
     let ds = ctx.ds;
     let (len, n) = (ds.len(), ds.n);
     if !cur.fits.iter().all(|c| c.has(EffectKind::Creep)) {
