@@ -105,9 +105,25 @@ fn findings(s: &mut String, ds: &Dataset, d: &Diagnosis, notes: &[String], resim
     };
     let _ = writeln!(s, "Noise at rest ({} samples, mean over nodes): white {:.3}, fast {:.3}, slow wander {:.3} (correlation time {:.1} s, common to all nodes {:.3}) {unit} standard deviation; {} one-frame spikes taken out.\n",
         nz.rest_samples, mean(&|p| p.white).sqrt(), mean(&|p| p.fast).sqrt(), mean(&|p| p.slow).sqrt(), nz.wander_tau_s, nz.common.slow.sqrt(), nz.spikes_rejected);
+    wander_line(s, &nz.wander, unit);
     let _ = writeln!(s, "SIM.toml re-simulated by taxel-sim (driven by the recorded force, no noise): RMSE {resim:.4} {unit} over the whole recording.\n");
     for n in notes {
         let _ = writeln!(s, "- note: {n}");
+    }
+}
+
+/// What the common-mode wander took out of the readings, and what the recorded temperature
+/// explained at rest that was left in for a drift (report.json `noise.wander`).
+fn wander_line(s: &mut String, w: &crate::wander::CommonWander, unit: &str) {
+    if w.active() {
+        let _ = writeln!(s, "Common-mode wander taken out of the readings before any fit: {:.3} {unit} standard deviation, correlation time {:.0} s, at most {:.3} {unit}.\n",
+            w.variance.sqrt(), w.tau_s, w.largest_taken_out);
+    } else if !w.refused.is_empty() {
+        let _ = writeln!(s, "No common-mode wander taken out: {}.\n", w.refused);
+    }
+    if w.temperature_left_in {
+        let _ = writeln!(s, "The recorded temperature (lagged {:.0} s) explains the level at rest beyond a wander (deviance lower by {:.1}): left in the readings for the thermal drift to explain, not taken for wander.\n",
+            w.temperature_lag_s, w.temperature_deviance_gain);
     }
 }
 
