@@ -31,22 +31,26 @@ pub(super) fn temperature_share(
         .collect();
     let xs: Vec<Vec<f64>> = lags.iter().map(|&lag| lagged(ds, temp, lag, r)).collect();
     let grid = wander_grid(r0, ds.duration());
+    // The filter over the observed samples only: between two of them it only propagates the
+    // state over the gap, which one step over the gap's length does alike.
+    let seen: Vec<usize> = (0..obs.len()).filter(|&i| r[i].is_finite()).collect();
+    let pick = |v: &[f64]| -> Vec<f64> { seen.iter().map(|&i| v[i]).collect() };
+    let (tc, oc, rc) = (pick(t), pick(obs), pick(r));
+    let xc: Vec<Vec<f64>> = xs.iter().map(|x| pick(x)).collect();
     // Per grid point: the deviance without the temperature, and with it at each lag.
     let fits = crate::parallel::map(grid.len(), |g| {
         let (var, tau) = grid[g];
-        let po = run(t, obs, r, var, tau);
-        let with: Vec<(f64, f64)> = xs
+        let po = run(&tc, &oc, &rc, var, tau);
+        let with: Vec<(f64, f64)> = xc
             .iter()
             .map(|x| {
-                let px = run(t, x, r, var, tau);
+                let px = run(&tc, x, &rc, var, tau);
                 let (mut sxx, mut sxy) = (0.0, 0.0);
-                for i in 0..obs.len() {
-                    if r[i].is_finite() {
-                        let s = px.pp[i] + r[i];
-                        let (eo, ex) = (obs[i] - po.mp[i], x[i] - px.mp[i]);
-                        sxx += ex * ex / s;
-                        sxy += ex * eo / s;
-                    }
+                for i in 0..oc.len() {
+                    let s = px.pp[i] + rc[i];
+                    let (eo, ex) = (oc[i] - po.mp[i], x[i] - px.mp[i]);
+                    sxx += ex * ex / s;
+                    sxy += ex * eo / s;
                 }
                 if sxx > 0.0 {
                     (po.nll - sxy * sxy / sxx, sxy / sxx)
