@@ -179,6 +179,9 @@ pub struct Verdict {
     /// Hysteresis only: the share of what it removes from the residual that is a loop (see
     /// `checks::loop_removed_share`); the check uses this one.
     pub loop_removed: Option<f64>,
+    /// Hysteresis held out in the backward pass with `loop_removed` under the bar: its
+    /// standard error (see `checks::loop_removed_se`).
+    pub loop_removed_se: Option<f64>,
     /// Thermal drift only: the size of its contribution relative to the residual at rest and
     /// far above the rest level (see `checks::gain_betas`).
     pub gain_betas: Option<[f64; 2]>,
@@ -347,6 +350,7 @@ pub fn compare(
         ramp_betas_se: None,
         loop_share: None,
         loop_removed: None,
+        loop_removed_se: None,
         gain_betas: None,
         gain_rest_se: None,
         within_trial_beta: None,

@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use crate::candidates::{applicable, n_params, ParamCount};
-use crate::checks::signature_check;
+use crate::checks::{loop_kept_within_uncertainty, signature_check};
 use crate::context::Context;
 use crate::cv::{compare, cross_validate, Cv, Verdict};
 use crate::diagnose::{
@@ -519,6 +519,11 @@ impl Selection<'_> {
             self.cur.clone()
         };
         signature_check(ctx.ds, &self.noise, e, &form, cv_minus, cv_cur, &mut v);
+        // A loop that joined passing its loop check falls to it here only beyond its
+        // uncertainty.
+        if e == EffectKind::Hysteresis {
+            loop_kept_within_uncertainty(ctx.ds, cv_minus, cv_cur, &checked, &mut v);
+        }
         // A drift of the force term only leaves the rest level alone and is not gain-checked
         // when it is tested (`checks::gain_betas` is NaN then); held out here, the change at
         // rest is the other effects refitting (a creep's recovery), not the drift's, so its
