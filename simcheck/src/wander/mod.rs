@@ -101,7 +101,7 @@ pub const LEAK_FACTOR: f64 = 3.0;
 /// 0.1-8.5, the recorded drifts with a rest share 10-51 (zoo-log, zoo-hys) and 6-21 (the
 /// reference world); zoo-pow's drift, on the force term only, has no rest share and reads
 /// about 1. Without this, zoo-hys's recorded drift beside creep lost its rest share to a
-/// "wander" of 4.6 counts and 128 s (fresh seed 277), and the drift was missed.
+/// "wander" of 4.6 counts and 128 s (hold-out seed 277), and the drift was missed.
 pub(super) const TEMPERATURE_BAR: f64 = 12.0;
 
 /// Least difference of two nodes' exposures (of the largest) for their pair to give the line a
