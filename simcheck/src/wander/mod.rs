@@ -97,10 +97,10 @@ pub const LEAK_FACTOR: f64 = 3.0;
 /// (twice the negative log-likelihood, beside a wander fitted with it: the squared z of its
 /// coefficient) for what it explains at rest to be left in the readings as a drift's rest
 /// share rather than taken out as wander: 12, a z of 3.5, about 3 after the choice among up to
-/// eight lags. On training seeds 1-4 the distractors (a temperature with no effect) read
-/// 0.1-8.5, the recorded drifts with a rest share 10-51 (zoo-log, zoo-hys) and 6-21 (the
-/// reference world); zoo-pow's drift, on the force term only, has no rest share and reads
-/// about 1. Without this, zoo-hys's recorded drift beside creep lost its rest share to a
+/// seven lags (none, 8-256 s). On training seeds 1-4 the distractors (a temperature with no
+/// effect) read 0.1-8.5, the recorded drifts with a rest share 10-51 (zoo-log, zoo-hys) and
+/// 6-21 (the reference world); zoo-pow's drift, on the force term only, has no rest share and
+/// reads about 1. Without this, zoo-hys's recorded drift beside creep lost its rest share to a
 /// "wander" of 4.6 counts and 128 s (hold-out seed 277), and the drift was missed.
 pub(super) const TEMPERATURE_BAR: f64 = 12.0;
 
