@@ -7,6 +7,7 @@ use std::sync::{Arc, Mutex};
 
 use crate::data::Dataset;
 use crate::model::{Observed, ObservedKey};
+use crate::numeric::LevelBins;
 
 /// Most samples the parameter search looks at per evaluation: what it looks at in a 5-minute
 /// recording at 100 Hz (every fourth sample), the zoo's length. A longer recording is fitted
@@ -64,6 +65,8 @@ pub struct Context<'a> {
     /// zero load (a logarithmic one) would otherwise turn the load cell's noise at rest into
     /// counts of predicted reading.
     pub force_model: Vec<f64>,
+    /// The force bins a hysteresis term is centred on (see [`LevelBins`]), of `force_model`.
+    pub level_bins: Arc<LevelBins>,
     /// The observations undone through the floor and crosstalk, for the last few sample sets
     /// and parameters (see `model::Observed`).
     pub(crate) observed: ObservedCache,
@@ -152,7 +155,8 @@ impl<'a> Context<'a> {
             .force
             .iter()
             .map(|&f| if f < zero_below { 0.0 } else { f })
-            .collect();
+            .collect::<Vec<f64>>();
+        let level_bins = Arc::new(LevelBins::new(&force_model));
         Context {
             ds,
             g_obs,
@@ -167,6 +171,7 @@ impl<'a> Context<'a> {
             load_scale,
             force_deadband,
             force_model,
+            level_bins,
             observed: Mutex::new(Vec::new()),
             spikes,
             grids: Mutex::new(Vec::new()),
@@ -264,6 +269,7 @@ impl<'a> Context<'a> {
             load_scale: self.load_scale.clone(),
             force_deadband: self.force_deadband,
             force_model: self.force_model.clone(),
+            level_bins: self.level_bins.clone(),
             observed: Mutex::new(Vec::new()),
             spikes: self.spikes,
             grids: Mutex::new(Vec::new()),

@@ -19,65 +19,107 @@ pub fn play_gap(f: &[f64], r: f64) -> Vec<f64> {
 }
 
 /// `x` minus its mean over samples with about the same force (32 force bins).
-pub fn centre_by_level(f: &[f64], mut x: Vec<f64>) -> Vec<f64> {
-    const BINS: usize = 32;
-    let fmax = f.iter().cloned().fold(0.0, f64::max).max(1e-12);
-    let bin = |v: f64| (((v.max(0.0) / fmax) * BINS as f64) as usize).min(BINS - 1);
-    let mut sum = [0.0f64; BINS];
-    let mut cnt = [0usize; BINS];
-    for (fi, xi) in f.iter().zip(&x) {
-        sum[bin(*fi)] += xi;
-        cnt[bin(*fi)] += 1;
-    }
-    for (fi, xi) in f.iter().zip(x.iter_mut()) {
-        let b = bin(*fi);
-        *xi -= sum[b] / cnt[b].max(1) as f64;
-    }
-    x
+pub fn centre_by_level(f: &[f64], x: Vec<f64>) -> Vec<f64> {
+    LevelBins::new(f).centre(x)
 }
 
 /// `x` minus a smooth function of the force: its mean over samples with about the same force
 /// (32 force bins), interpolated linearly between the bins' mean forces. Unlike
 /// [`centre_by_level`]'s staircase, what is taken out is a function a smooth static law can
 /// carry, so a large term centred this way leaves no steps for the law to miss.
-pub fn centre_by_level_smooth(f: &[f64], mut x: Vec<f64>) -> Vec<f64> {
+pub fn centre_by_level_smooth(f: &[f64], x: Vec<f64>) -> Vec<f64> {
+    LevelBins::new(f).centre_smooth(x)
+}
+
+/// The force bins of [`centre_by_level`] and [`centre_by_level_smooth`] for one force series,
+/// built once: each sample's bin and, for the smooth centring, the two bins it is interpolated
+/// between and its weight. A hysteresis term is centred at every evaluation of a search
+/// (a bin search per sample each time, a tenth of a loop recording's diagnosis); with the bins
+/// kept the centring is two passes over the samples, with the same sums in the same order.
+pub struct LevelBins {
+    /// Each sample's bin.
+    bin: Vec<u8>,
+    /// Each sample's bins below and above for the interpolation, and its weight on the upper
+    /// one (both the same bin and weight 0 outside the bins' mean forces).
+    interp: Vec<(u8, u8, f64)>,
+    cnt: [usize; Self::BINS],
+}
+
+impl LevelBins {
     const BINS: usize = 32;
-    let fmax = f.iter().cloned().fold(0.0, f64::max).max(1e-12);
-    let bin = |v: f64| (((v.max(0.0) / fmax) * BINS as f64) as usize).min(BINS - 1);
-    let (mut sx, mut sf, mut cnt) = ([0.0f64; BINS], [0.0f64; BINS], [0usize; BINS]);
-    for (fi, xi) in f.iter().zip(&x) {
-        let b = bin(*fi);
-        sx[b] += xi;
-        sf[b] += fi.max(0.0);
-        cnt[b] += 1;
+
+    pub fn new(f: &[f64]) -> LevelBins {
+        const BINS: usize = LevelBins::BINS;
+        let fmax = f.iter().cloned().fold(0.0, f64::max).max(1e-12);
+        let of = |v: f64| (((v.max(0.0) / fmax) * BINS as f64) as usize).min(BINS - 1);
+        let bin: Vec<u8> = f.iter().map(|&v| of(v) as u8).collect();
+        let (mut sf, mut cnt) = ([0.0f64; BINS], [0usize; BINS]);
+        for (fi, &b) in f.iter().zip(&bin) {
+            sf[b as usize] += fi.max(0.0);
+            cnt[b as usize] += 1;
+        }
+        // (bin, mean force) of each bin that holds samples, in order of force.
+        let pts: Vec<(u8, f64)> = (0..BINS)
+            .filter(|&b| cnt[b] > 0)
+            .map(|b| (b as u8, sf[b] / cnt[b] as f64))
+            .collect();
+        let interp = f
+            .iter()
+            .map(|&fi| {
+                let v = fi.max(0.0);
+                let j = pts.partition_point(|p| p.1 < v);
+                if j == 0 {
+                    (pts[0].0, pts[0].0, 0.0)
+                } else if j == pts.len() {
+                    (pts[j - 1].0, pts[j - 1].0, 0.0)
+                } else {
+                    let (a, b) = (pts[j - 1], pts[j]);
+                    let w = if b.1 > a.1 {
+                        (v - a.1) / (b.1 - a.1)
+                    } else {
+                        0.0
+                    };
+                    (a.0, b.0, w)
+                }
+            })
+            .collect();
+        LevelBins { bin, interp, cnt }
     }
-    // (mean force, mean x) of each bin that holds samples, in order of force.
-    let pts: Vec<(f64, f64)> = (0..BINS)
-        .filter(|&b| cnt[b] > 0)
-        .map(|b| (sf[b] / cnt[b] as f64, sx[b] / cnt[b] as f64))
-        .collect();
-    if pts.is_empty() {
-        return x;
+
+    /// Each bin's mean of `x` (0 for an empty bin).
+    fn means(&self, x: &[f64]) -> [f64; Self::BINS] {
+        let mut sum = [0.0f64; Self::BINS];
+        for (xi, &b) in x.iter().zip(&self.bin) {
+            sum[b as usize] += xi;
+        }
+        let mut mean = [0.0f64; Self::BINS];
+        for ((m, s), &c) in mean.iter_mut().zip(&sum).zip(&self.cnt) {
+            *m = s / c.max(1) as f64;
+        }
+        mean
     }
-    for (fi, xi) in f.iter().zip(x.iter_mut()) {
-        let v = fi.max(0.0);
-        let j = pts.partition_point(|p| p.0 < v);
-        let m = if j == 0 {
-            pts[0].1
-        } else if j == pts.len() {
-            pts[j - 1].1
-        } else {
-            let (a, b) = (pts[j - 1], pts[j]);
-            let w = if b.0 > a.0 {
-                (v - a.0) / (b.0 - a.0)
-            } else {
-                0.0
-            };
-            a.1 + w * (b.1 - a.1)
-        };
-        *xi -= m;
+
+    /// [`centre_by_level`] on these bins.
+    pub fn centre(&self, mut x: Vec<f64>) -> Vec<f64> {
+        let mean = self.means(&x);
+        for (xi, &b) in x.iter_mut().zip(&self.bin) {
+            *xi -= mean[b as usize];
+        }
+        x
     }
-    x
+
+    /// [`centre_by_level_smooth`] on these bins.
+    pub fn centre_smooth(&self, mut x: Vec<f64>) -> Vec<f64> {
+        if self.bin.is_empty() {
+            return x;
+        }
+        let mean = self.means(&x);
+        for (xi, &(a, b, w)) in x.iter_mut().zip(&self.interp) {
+            let (a, b) = (mean[a as usize], mean[b as usize]);
+            *xi -= a + w * (b - a);
+        }
+        x
+    }
 }
 
 /// First-order low-pass of `x` sampled at intervals `dt` (the step factor is computed once per

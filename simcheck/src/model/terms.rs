@@ -7,7 +7,7 @@ use crate::context::Context;
 use crate::effects::{Config, REMNANT_RAMPS};
 use crate::forms::{bouc_wen_gap, max_scan_skew, Knee};
 use crate::law::{Basis, Law};
-use crate::numeric::{centre_by_level, centre_by_level_smooth, play_gap};
+use crate::numeric::play_gap;
 
 /// The regressors of the per-node linear fit: the loads, the curvature sensitivity per sample,
 /// the additive hysteresis term and the curvature-baseline regressor, the spline's basis (with
@@ -263,9 +263,7 @@ fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<Vec<f64>>)
             );
             // A loop that widens with the load is large at the top: centred on a staircase,
             // its steps would be left for the smooth law to miss.
-            let mut centred = terms
-                .into_iter()
-                .map(|x| centre_by_level_smooth(&ctx.force_model, x));
+            let mut centred = terms.into_iter().map(|x| ctx.level_bins.centre_smooth(x));
             let z = centred.next().unwrap_or_default();
             (z, centred.collect())
         }
@@ -277,7 +275,7 @@ fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<Vec<f64>>)
                 .zip(&wide)
                 .map(|(a, b)| a + cfg.hyst_mix * b)
                 .collect();
-            (centre_by_level(&ctx.force_model, mixed), Vec::new())
+            (ctx.level_bins.centre(mixed), Vec::new())
         }
         _ => (Vec::new(), Vec::new()),
     }
