@@ -7,7 +7,7 @@ use super::{Selection, Tested, Variant};
 use crate::candidates::{added_params, candidates, ParamCount};
 use crate::checks::signature_check;
 use crate::cv::{compare, cross_validate, cross_validate_from};
-use crate::effects::{Config, EffectKind};
+use crate::effects::{Config, EffectKind, Thermal};
 use crate::search::{train_sse, Param};
 
 impl Selection<'_> {
@@ -94,7 +94,12 @@ impl Selection<'_> {
         params: &[Param],
     ) -> Tested {
         let k = added_params(&self.cur, first, e);
-        let (cv, mut v, screened) = self.held_out(starts, params, k);
+        let latent = matches!(first.thermal, Some(Thermal::Latent { .. }));
+        let (cv, mut v, screened) = if e == EffectKind::ThermalDrift && latent {
+            self.held_out_on_fold_fits(e, starts, k)
+        } else {
+            self.held_out(starts, params, k)
+        };
         signature_check(
             self.ctx.ds,
             &self.noise,
@@ -172,6 +177,26 @@ impl Selection<'_> {
         (cv, v, false)
     }
 
+    /// A candidate that adds no searched parameter (a latent drift: its knots are solved with
+    /// the nodes) held out from each fold's own fit of the current model with it added,
+    /// nothing searched: the full test's verdict, no screen. A search over the current model's
+    /// parameters alone would move them little (40 or 20 evaluations over up to ten of them,
+    /// most spent on the simplex's first points) and cost most of a loop recording's drift
+    /// tests; what the test asks is whether the drift lowers the held-out error of the model
+    /// as it stands.
+    fn held_out_on_fold_fits(&self, e: EffectKind, starts: &[Config], k: ParamCount) -> Tested {
+        let on = |f: usize| -> Vec<Config> {
+            starts
+                .iter()
+                .map(|s| self.cur_cv.fits[f].with_effect_of(e, s))
+                .collect()
+        };
+        let (a, b) = (on(0), on(1));
+        let cv = cross_validate_from(self.ctx, [&a, &b], &[], self.ev_n);
+        let v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
+        (cv, v, false)
+    }
+
     /// Effect `e`'s variants worth holding out: all of them when there are two or fewer; else
     /// the two (three of hysteresis's five or more forms) whose best starting point scores
     /// best on the whole recording in the screening view (see [`crate::screen`]; a quarter of
@@ -244,5 +269,61 @@ impl Selection<'_> {
             }
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::context::Context;
+    use crate::cv::cross_validate;
+    use crate::noise::NoiseModel;
+    use crate::search::base_params;
+    use crate::selection::{Selection, Views};
+
+    /// One node read in ohms: a power law whose conductance a slow drift scales by 0.8-1.2
+    /// over the recording, and a dither of 1 %.
+    fn drifting() -> crate::data::Dataset {
+        let mut ds = crate::testdata::presses();
+        let dur = ds.duration();
+        for i in 0..ds.len() {
+            let m = 1.0 + 0.2 * (std::f64::consts::TAU * ds.t[i] / dur).sin();
+            let dither = 1.0 + 0.01 * ((i * 7919 % 101) as f64 / 50.0 - 1.0);
+            let g = m * (1e-4 + 1e-3 * ds.force[i].max(0.0).powf(1.3)) * dither;
+            ds.y[i] = 1.0 / g;
+        }
+        ds
+    }
+
+    #[test]
+    fn a_latent_drift_is_held_out_on_the_current_models_fold_fits_with_nothing_searched() {
+        let ds = drifting();
+        let ctx = Context::new(&ds);
+        let screen = ctx.coarser(crate::screen::FACTOR);
+        let shared = std::cell::OnceCell::new();
+        let cfg0 = Config::base(1.0, 0.0);
+        let cv0 = cross_validate(&ctx, std::slice::from_ref(&cfg0), &base_params(&cfg0), 40);
+        let noise = NoiseModel::estimate(&ctx, &cv0.resid);
+        let progress = |_: crate::diagnose::Progress| {};
+        let views = Views {
+            ctx: &ctx,
+            screen: &screen,
+            shared: &shared,
+        };
+        let start = (cv0.fits[0].clone(), cv0.clone());
+        let mut sel = Selection::new(views, 40, cfg0, start, noise, &progress);
+        let (cv, v, screened) = sel
+            .best_variant(EffectKind::ThermalDrift)
+            .expect("a latent drift is testable");
+        // The full test's verdict, on each fold the current model's own fit with the drift
+        // added: its exponent is that fold's, not searched again.
+        assert!(!screened);
+        for f in 0..2 {
+            assert_eq!(cv.fits[f].exponent, cv0.fits[f].exponent);
+            assert!(matches!(cv.fits[f].thermal, Some(Thermal::Latent { .. })));
+        }
+        // And the drift is what the held-out error lacked.
+        assert!(v.rel_gain > 0.5, "gain {}", v.rel_gain);
+        assert!(v.accepted, "{v:?}");
     }
 }
