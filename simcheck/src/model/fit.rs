@@ -204,8 +204,17 @@ impl NodeFit<'_> {
     /// residual domain around the current prediction instead of the observation (whose 1/G^2
     /// weights would favour the highest-resistance samples). The normal equations are summed
     /// per knot segment over the local regressors and then mapped to the full row (one
-    /// segment for the power law; see [`crate::law::RowMap`]).
-    pub(super) fn node(&self, k: usize, m: &[f64]) -> (Vec<f64>, Arc<Locals>) {
+    /// segment for the power law; see [`crate::law::RowMap`]). `warm`: the node's parameters
+    /// from the evaluation's previous iteration (a latent drift or per-trial sensitivities are
+    /// fitted with the nodes, alternately); such a readout's fit then starts from them and
+    /// takes one Gauss-Newton pass, not the linearisation at the observations and two passes
+    /// (the thermal factor has moved a little since).
+    pub(super) fn node(
+        &self,
+        k: usize,
+        m: &[f64],
+        warm: Option<&[f64]>,
+    ) -> (Vec<f64>, Arc<Locals>) {
         let ds = self.ctx.ds;
         let lay = &self.terms.lay;
         let pdim = lay.dim();
@@ -216,14 +225,17 @@ impl NodeFit<'_> {
         } else {
             2
         };
-        let mut th = vec![0.0; pdim];
+        let (mut th, first) = match warm {
+            Some(w) if gn_passes > 0 && w.len() == pdim => (w.to_vec(), gn_passes),
+            _ => (vec![0.0; pdim], 0),
+        };
         let base = k * self.fit_idx.len();
         let shared = self.terms.group(k).and_then(|(g, _)| self.groups.get(g));
         let locals = match shared {
             Some(l) => l.clone(),
             None => Arc::new(Locals::new(self.terms, k, self.fit_idx)),
         };
-        for pass in 0..=gn_passes {
+        for pass in first..=gn_passes {
             let mut s_loc = vec![0.0; segments * vdim * vdim];
             let mut r_loc = vec![0.0; segments * vdim];
             for (j, &i) in self.fit_idx.iter().enumerate() {

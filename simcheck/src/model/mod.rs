@@ -133,9 +133,12 @@ fn evaluate_inner(
             r: cfg.floor(),
             groups: shared_locals(&terms, n, &fit_idx),
         };
-        (theta, locals) = crate::parallel::map(n, |k| fit.node(k, &m))
-            .into_iter()
-            .unzip();
+        // After the first iteration each node starts from its own last parameters.
+        let warm = (it > 0).then_some(&theta);
+        (theta, locals) =
+            crate::parallel::map(n, |k| fit.node(k, &m, warm.map(|t| t[k].as_slice())))
+                .into_iter()
+                .unzip();
         if it + 1 == iterations {
             break;
         }
