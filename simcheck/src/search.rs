@@ -270,7 +270,13 @@ pub fn fit(
     // A latent thermal factor and per-trial sensitivities are re-read from the final
     // evaluation (they are fitted inside it).
     if matches!(&c.thermal, Some(Thermal::Latent { .. })) || c.curv_trials.is_some() {
-        let ev = evaluate(ctx, &c, train);
+        // A latent drift alone is re-read from a fit on the held-out evaluation's samples,
+        // without predictions (the held-out evaluation refits it from there anyway).
+        let ev = if c.curv_trials.is_none() {
+            evaluate_with(ctx, &c, train, ctx.held_out_stride(), false)
+        } else {
+            evaluate(ctx, &c, train)
+        };
         if let (Some(Thermal::Latent { values, .. }), Some(v)) = (&mut c.thermal, ev.latent) {
             *values = v;
         }
