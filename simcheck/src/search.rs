@@ -271,7 +271,7 @@ pub fn fit(
     // evaluation (they are fitted inside it).
     if matches!(&c.thermal, Some(Thermal::Latent { .. })) || c.curv_trials.is_some() {
         // A latent drift alone is re-read from a fit on the held-out evaluation's samples,
-        // without predictions (the held-out evaluation refits it from there anyway).
+        // without predictions: every later evaluation refits the knots from these values.
         let ev = if c.curv_trials.is_none() {
             evaluate_with(ctx, &c, train, ctx.held_out_stride(), false)
         } else {
