@@ -182,18 +182,18 @@ fn hysteresis_params(j: &serde_json::Value) -> Option<&serde_json::Value> {
 
 /// zoo-hys, seed 256 (a spent hold-out seed): with two amplitudes per node (on `z` and
 /// `z u`), the additive Bouc-Wen left node 9, the strongest loop, `unexplained` at 5.6 times
-/// its noise floor (held-out RMSE 12.57 counts). Seen through the node's power law, a loop that
-/// widens with the load changes with it as more than a straight line: the twin with a third
-/// amplitude (`z u^2`) is preferred by the criterion, the loop is named alone and nothing is
-/// left. zoo-amp's loop (seed 207, a factor on the conductance) keeps two.
+/// its noise floor (held-out RMSE 12.57 counts); the twin with a third amplitude (`z u^2`)
+/// then took most of it (under 11). Most of what was left was the state's mean at each force
+/// level, which centring the state had handed to the smooth law: with the state as it is, the
+/// loop is named alone, nothing is left, and it holds out at 5.5 counts with two amplitudes.
 #[test]
-fn a_loop_seen_through_a_curved_law_earns_a_third_amplitude_per_node() {
+fn a_loop_seen_through_a_curved_law_is_named_alone_and_leaves_no_node() {
     let (_dir, _, j) = passing_case(Family::ZooHys, Case::Hysteresis, 256);
     let p = hysteresis_params(&j).expect("hysteresis named");
     assert_eq!(p["additive"].as_f64(), Some(1.0), "{p}");
-    assert_eq!(p["quadratic"].as_f64(), Some(1.0), "{p}");
+    assert_eq!(j["unexplained"].as_array().map(Vec::len), Some(0));
     let rmse = j["rmse_final"].as_f64().unwrap_or(f64::NAN);
-    assert!(rmse < 11.0, "held-out RMSE {rmse}");
+    assert!(rmse < 7.0, "held-out RMSE {rmse}");
 }
 
 /// Whether a report.json's candidate named `effect` was accepted (None when not tested).

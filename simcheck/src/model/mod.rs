@@ -482,4 +482,57 @@ mod tests {
             "shape {sse_shape} power {sse_power}"
         );
     }
+
+    #[test]
+    fn an_additive_loop_is_fitted_as_it_is_not_centred_by_level() {
+        // Two nodes, a linear law and an additive Bouc-Wen loop of each node's own strength,
+        // read through the amplifier. Every press holds its level for a second, so the loop's
+        // mean at each level held has a bump a smooth law cannot carry: the model must fit the
+        // loop as the state it is, not the state less its mean by level.
+        let mut ds = crate::testdata::presses_on(1, 2);
+        let len = ds.len();
+        ds.map = crate::data::ReadoutMap::from_readout(&taxel_sim::SensorModel::default().readout);
+        let cfg = Config {
+            hysteresis: Some(1.5),
+            hyst_bouc_wen: true,
+            hyst_bw_n: 1.5,
+            hyst_bw_asym: -0.6,
+            hyst_bw_z0: -1.0,
+            ..Config::base(1.0, 0.0)
+        };
+        let ctx = Context::new(&ds);
+        let r = ctx.hyst_r(1.5);
+        let z = &crate::forms::bouc_wen_gap(
+            &ctx.force_model,
+            r,
+            &crate::forms::Knee::new(1.5),
+            ctx.force_deadband,
+            -0.6,
+            -1.0,
+            1,
+        )[0];
+        let loop_g = |i: usize, k: usize| 8e-6 * (1.0 + 2.0 * k as f64) * z[i];
+        // The baseline keeps the conductance positive at rest in the loop's lowest state.
+        ds.y = (0..len * 2)
+            .map(|idx| {
+                let (i, k) = (idx / 2, idx % 2);
+                let g = 60e-6 + 40e-6 * (1.0 + k as f64) * ds.force[i] + loop_g(i, k);
+                ds.map.from_g(g)
+            })
+            .collect();
+        let ctx = Context::new(&ds);
+        let ev = evaluate(&ctx, &cfg, &|_| true);
+        let rms = |v: &mut dyn Iterator<Item = f64>| {
+            let (s, c) = v.fold((0.0, 0usize), |(s, c), x| (s + x * x, c + 1));
+            (s / c.max(1) as f64).sqrt()
+        };
+        let misfit = rms(&mut (0..len * 2).map(|idx| ev.pred[idx] - ds.map.dom(ds.y[idx])));
+        // The loop's own size in the same units: the reading with and without it.
+        let size = rms(&mut (0..len * 2).map(|idx| {
+            let (i, k) = (idx / 2, idx % 2);
+            let g = 60e-6 + 40e-6 * (1.0 + k as f64) * ds.force[i];
+            ds.map.dom(ds.map.from_g(g + loop_g(i, k))) - ds.map.dom(ds.map.from_g(g))
+        }));
+        assert!(misfit < 0.02 * size, "misfit {misfit} loop {size}");
+    }
 }
