@@ -132,7 +132,7 @@ impl Selection<'_> {
         // the rest, creep must not make the holds worse, a loop must be one), as the backward
         // pass would ask of it once joined: a pair whose second effect fails there joined and
         // was dropped again (zoo-hys's 10-minute creep + loop: a latent drift beside creep that
-        // did not improve the rest, 5.3 s of a 12.9 s diagnosis).
+        // did not improve the rest, 5.4 s of a 12.9 s diagnosis).
         if let Some(form) = cv.fits.first() {
             let ds = self.ctx.ds;
             signature_check(
