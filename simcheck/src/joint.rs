@@ -133,18 +133,16 @@ impl Selection<'_> {
         // pass would ask of it once joined: a pair whose second effect fails there joined and
         // was dropped again (zoo-hys's 10-minute creep + loop: a latent drift beside creep that
         // did not improve the rest, 5.4 s of a 12.9 s diagnosis).
-        if let Some(form) = cv.fits.first() {
-            let ds = self.ctx.ds;
-            signature_check(
-                ds,
-                &self.noise,
-                second,
-                form,
-                &single.0,
-                &cv,
-                &mut over_single,
-            );
-        }
+        let (ds, form) = (self.ctx.ds, &cv.fits[0]);
+        signature_check(
+            ds,
+            &self.noise,
+            second,
+            form,
+            &single.0,
+            &cv,
+            &mut over_single,
+        );
         v.accepted &= over_single.accepted;
         self.trials.push(Trial {
             round,

@@ -270,14 +270,13 @@ fn additive_hysteresis(ctx: &Context, cfg: &Config) -> (Vec<f64>, Vec<Vec<f64>>)
             // With a remnant the state stays centred on a smooth function of the force, as the
             // form was built and checked (no zoo case keeps it; uncentred, world B's
             // mm_hysteresis held out at 34.8 counts instead of 28.4, another form winning).
-            let centre = cfg.hyst_remnant;
-            let mut terms = terms.into_iter().map(|x| {
-                if centre {
-                    ctx.level_bins.centre_smooth(x)
-                } else {
-                    x
-                }
-            });
+            let terms: Vec<Vec<f64>> = if cfg.hyst_remnant {
+                let bins = &ctx.level_bins;
+                terms.into_iter().map(|x| bins.centre_smooth(x)).collect()
+            } else {
+                terms
+            };
+            let mut terms = terms.into_iter();
             let z = terms.next().unwrap_or_default();
             (z, terms.collect())
         }
