@@ -178,6 +178,10 @@ pub struct Config {
     /// Row-switch settling (s): the first node of each row lags its input by this much more
     /// (part of scan_skew; 0 when absent).
     pub scan_settle: f64,
+    /// Scan skew's placebo: every node shifted in time alike (by the middle node's shift), no
+    /// row settling. Held out only against a scan skew (`selection/scan_placebo.rs`); never
+    /// joins a model.
+    pub scan_uniform: bool,
 }
 
 impl Config {
@@ -216,6 +220,7 @@ impl Config {
             curv_base: false,
             crosstalk: None,
             scan_skew: None,
+            scan_uniform: false,
             scan_settle: 0.0,
         }
     }
@@ -293,7 +298,10 @@ impl Config {
                 c.thermal_gain_only = false;
             }
             EffectKind::Crosstalk => c.crosstalk = None,
-            EffectKind::ScanSkew => c.scan_skew = None,
+            EffectKind::ScanSkew => {
+                c.scan_skew = None;
+                c.scan_uniform = false;
+            }
         }
         c
     }
@@ -344,6 +352,7 @@ impl Config {
             EffectKind::ScanSkew => {
                 c.scan_skew = from.scan_skew;
                 c.scan_settle = from.scan_settle;
+                c.scan_uniform = from.scan_uniform;
             }
         }
         c

@@ -93,9 +93,24 @@ fn curvature_effects_are_found_without_a_curvature_column() {
 fn crosstalk_is_found() {
     check(Case::Crosstalk);
 }
+/// Scan skew is found, and it beats its placebo, the same time shift for every node
+/// (`selection/scan_placebo.rs`), which loops and creep refuse it by.
 #[test]
 fn scan_skew_is_found() {
-    check(Case::ScanSkew);
+    let dir = std::env::temp_dir().join(format!("taxel-simcheck-skew-{}", std::process::id()));
+    check_in(Case::ScanSkew, Some(&dir));
+    let path = dir.join(Case::ScanSkew.slug()).join("report.json");
+    let text = std::fs::read_to_string(&path).expect("report.json written");
+    let _ = std::fs::remove_dir_all(&dir);
+    let j: serde_json::Value = serde_json::from_str(&text).expect("report.json parses");
+    let placebo = j["candidates"]
+        .as_array()
+        .and_then(|c| {
+            c.iter()
+                .find(|t| t["effect"] == "scan_skew (against the same shift for every node)")
+        })
+        .expect("the placebo is held out");
+    assert_eq!(placebo["verdict"]["accepted"].as_bool(), Some(true));
 }
 #[test]
 fn saturation_left_out_of_the_start_model_is_found() {

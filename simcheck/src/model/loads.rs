@@ -24,6 +24,8 @@ pub(super) struct Loads {
     slopes: Vec<Vec<f64>>,
     skew: f64,
     settle: f64,
+    /// Scan skew's placebo ([`Config::scan_uniform`]): every node at this scan index.
+    uniform: Option<f64>,
     cols: usize,
     step: usize,
     compact: bool,
@@ -208,6 +210,9 @@ impl Loads {
             slopes,
             skew,
             settle: cfg.scan_settle,
+            uniform: cfg
+                .scan_uniform
+                .then(|| ds.n.saturating_sub(1) as f64 / 2.0),
             cols: ds.cols.max(1),
             step,
             compact,
@@ -239,12 +244,12 @@ impl Loads {
         if self.slopes.is_empty() {
             self.loads[j][i]
         } else {
-            let lag = if k.is_multiple_of(self.cols) {
-                self.settle
-            } else {
-                0.0
+            let shift = match self.uniform {
+                Some(mid) => self.skew * mid,
+                None if k.is_multiple_of(self.cols) => self.skew * k as f64 - self.settle,
+                None => self.skew * k as f64,
             };
-            (self.loads[j][i] + (self.skew * k as f64 - lag) * self.slopes[j][i]).max(0.0)
+            (self.loads[j][i] + shift * self.slopes[j][i]).max(0.0)
         }
     }
 }

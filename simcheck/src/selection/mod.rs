@@ -5,6 +5,7 @@
 
 mod node_creep;
 mod reform;
+mod scan_placebo;
 mod variants;
 
 use std::collections::BTreeMap;
@@ -301,7 +302,7 @@ impl Selection<'_> {
             self.retest_static();
         }
         self.reform_sensitivity(round);
-        let mut best: Option<Best> = None;
+        let mut accepted: Vec<Best> = Vec::new();
         // Saturation and crosstalk belong to the static law: decided in round 0.
         let todo: Vec<EffectKind> = EffectKind::ALL
             .into_iter()
@@ -340,17 +341,17 @@ impl Selection<'_> {
                 screened,
             });
             self.trials.extend(against);
-            if v.accepted && best.as_ref().is_none_or(|b| v.rel_gain > b.2.rel_gain) {
-                best = Some((vec![e], cv.clone(), v));
+            if v.accepted {
+                accepted.push((vec![e], cv.clone(), v));
             }
             tested.insert(e, (cv, v));
         }
         for (pair, cv, v) in self.joint_pairs(round, &tested) {
-            if v.accepted && best.as_ref().is_none_or(|b| v.rel_gain > b.2.rel_gain) {
-                best = Some((pair.to_vec(), cv, v));
+            if v.accepted {
+                accepted.push((pair.to_vec(), cv, v));
             }
         }
-        let Some((effects, cv, _)) = best else {
+        let Some((effects, cv, _)) = self.best_standing(round, accepted) else {
             return false;
         };
         let before = self.cur_cv.clone();
