@@ -158,8 +158,8 @@ impl Selection<'_> {
 
     /// Whether the pair's `first` effect (the better alone) keeps its place beside the other,
     /// by the backward pass's rule and its physics, held out without it from the pair's own
-    /// fold fits (nothing searched: a little lenient to it, one evaluation per fold). A pair whose
-    /// first effect would be dropped at once must not outbid a single effect: on zoo-sat's
+    /// fold fits (nothing searched: a little lenient to it, one evaluation per fold). A pair
+    /// whose first effect would be dropped at once must not outbid a single effect: on zoo-sat's
     /// loop (training seed 3) creep + a latent drift (21 % of the held-out SSE) outbid the
     /// loop (9.7 %), the drift (a wander fitted as a gain) was dropped in the backward pass,
     /// and creep was left named alone.

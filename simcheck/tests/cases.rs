@@ -36,6 +36,17 @@ fn check_in(case: Case, out: Option<&std::path::Path>) {
     );
 }
 
+/// Checks `case` as [`check`] does, with its outputs in a temporary directory (named with
+/// `tag`, removed after); returns its report.json.
+fn checked_report(case: Case, tag: &str) -> serde_json::Value {
+    let dir = std::env::temp_dir().join(format!("taxel-simcheck-{tag}-{}", std::process::id()));
+    check_in(case, Some(&dir));
+    let path = dir.join(case.slug()).join("report.json");
+    let text = std::fs::read_to_string(&path).expect("report.json written");
+    let _ = std::fs::remove_dir_all(&dir);
+    serde_json::from_str(&text).expect("report.json parses")
+}
+
 #[test]
 fn null_recording_names_nothing() {
     check(Case::Null);
@@ -52,12 +63,7 @@ fn two_time_constant_creep_is_found() {
 /// shares, gains rescaled) makes taxel-sim reproduce the tool's own fit.
 #[test]
 fn bouc_wen_hysteresis_is_found_and_its_sim_model_reproduces_the_fit() {
-    let dir = std::env::temp_dir().join(format!("taxel-simcheck-hyst-{}", std::process::id()));
-    check_in(Case::Hysteresis, Some(&dir));
-    let path = dir.join(Case::Hysteresis.slug()).join("report.json");
-    let text = std::fs::read_to_string(&path).expect("report.json written");
-    let _ = std::fs::remove_dir_all(&dir);
-    let j: serde_json::Value = serde_json::from_str(&text).expect("report.json parses");
+    let j = checked_report(Case::Hysteresis, "hyst");
     let num = |k: &str| j[k].as_f64().unwrap_or(f64::NAN);
     let (base, fit, resim) = (
         num("rmse_base"),
@@ -97,12 +103,7 @@ fn crosstalk_is_found() {
 /// (`selection/scan_placebo.rs`), which loops and creep refuse it by.
 #[test]
 fn scan_skew_is_found() {
-    let dir = std::env::temp_dir().join(format!("taxel-simcheck-skew-{}", std::process::id()));
-    check_in(Case::ScanSkew, Some(&dir));
-    let path = dir.join(Case::ScanSkew.slug()).join("report.json");
-    let text = std::fs::read_to_string(&path).expect("report.json written");
-    let _ = std::fs::remove_dir_all(&dir);
-    let j: serde_json::Value = serde_json::from_str(&text).expect("report.json parses");
+    let j = checked_report(Case::ScanSkew, "skew");
     let placebo = j["candidates"]
         .as_array()
         .and_then(|c| {

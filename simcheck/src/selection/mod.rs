@@ -294,7 +294,8 @@ impl Selection<'_> {
     }
 
     /// One round of forward selection: tests every applicable effect not yet in the model and
-    /// adds the accepted one with the largest held-out gain; false when none was accepted.
+    /// adds the accepted one with the largest held-out gain that also beats its placebo (scan
+    /// skew's: `scan_placebo`); false when none was accepted.
     pub(crate) fn round(&mut self, round: usize) -> bool {
         // The static law again once an effect has joined: what the effect took out of the
         // residual may have hidden the law's shape in round 0 (a drift's slow share, for one).

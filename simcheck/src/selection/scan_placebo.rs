@@ -2,7 +2,7 @@
 //! grows with each node's place in the scan (node `k` reads the force `k dt` later in the
 //! frame), so its change is proportional to `k dF/dt`. What a loop or creep leaves on the
 //! ramps also changes sign with `dF/dt`, at every node alike, and a shift takes part of it: on
-//! loop recordings scan skew removed 2-25 % of the held-out SSE in round 1 (block t 4-14), and
+//! loop recordings scan skew removed 1-25 % of the held-out SSE in round 1 (block t 4-14), and
 //! on zoo-log's and zoo-hys's loops (fresh seed 300) it was named beside the loop in round 2
 //! (2.2 % and 5.6 %). So scan skew must also beat its placebo, the same shift for every node
 //! (the middle node's, no row settling: [`crate::effects::Config::scan_uniform`]), by the
