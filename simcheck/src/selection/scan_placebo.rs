@@ -12,9 +12,9 @@
 
 use std::time::Instant;
 
-use super::{Best, Selection, Tested};
+use super::{Best, Selection};
 use crate::candidates::ParamCount;
-use crate::cv::{compare, cross_validate_from};
+use crate::cv::{compare, cross_validate_from, Cv};
 use crate::diagnose::Trial;
 use crate::effects::{Config, EffectKind};
 use crate::search::Param;
@@ -30,11 +30,10 @@ impl Selection<'_> {
             if effects != [EffectKind::ScanSkew] {
                 return Some((effects, cv, v));
             }
-            let mut t = (cv, v, false);
-            self.trials
-                .extend(self.skew_beats_uniform_shift(round, &mut t));
-            if t.1.accepted {
-                return Some((effects, t.0, t.1));
+            let (trial, beats) = self.skew_against_uniform_shift(round, &cv);
+            self.trials.push(trial);
+            if beats {
+                return Some((effects, cv, v));
             }
             // The skew's own row reads refused too.
             let own = EffectKind::ScanSkew.name();
@@ -50,18 +49,9 @@ impl Selection<'_> {
         None
     }
 
-    /// A scan skew `tested` against the current model and accepted: held against its placebo
-    /// (see the module's description); refused when it does not beat it. The comparison's
-    /// trial, when made.
-    pub(super) fn skew_beats_uniform_shift(
-        &self,
-        round: usize,
-        tested: &mut Tested,
-    ) -> Option<Trial> {
-        let (cv, v, screened) = tested;
-        if *screened || !v.accepted {
-            return None;
-        }
+    /// An accepted scan skew (held out as `cv`) against its placebo (see the module's
+    /// description): the comparison's trial, and whether the skew beats the placebo.
+    fn skew_against_uniform_shift(&self, round: usize, cv: &Cv) -> (Trial, bool) {
         let tc = Instant::now();
         let uniform = |f: usize| -> Vec<Config> {
             vec![Config {
@@ -77,15 +67,13 @@ impl Selection<'_> {
             per_node: 0,
         };
         let against = compare(self.ctx, &placebo, cv, k, &self.noise);
-        if !against.accepted {
-            v.accepted = false;
-        }
-        Some(Trial {
+        let trial = Trial {
             round,
             effect: "scan_skew (against the same shift for every node)".into(),
             verdict: against,
             seconds: tc.elapsed().as_secs_f64(),
             screened: false,
-        })
+        };
+        (trial, against.accepted)
     }
 }
