@@ -216,19 +216,22 @@ impl NodeFit<'_> {
     /// from the evaluation's previous iteration (a latent drift or per-trial sensitivities are
     /// fitted with the nodes, alternately); such a readout's fit then starts from them and
     /// takes one Gauss-Newton pass, not the linearisation at the observations and two passes
-    /// (the thermal factor has moved a little since).
+    /// (the thermal factor has moved a little since). `linear_only`: the linearisation at the
+    /// observations alone, no pass (the alternation's first fit: its factor moves before the
+    /// next fit, which takes a pass from there).
     pub(super) fn node(
         &self,
         k: usize,
         m: &[f64],
         warm: Option<&[f64]>,
+        linear_only: bool,
     ) -> (Vec<f64>, Arc<Locals>) {
         let ds = self.ctx.ds;
         let lay = &self.terms.lay;
         let pdim = lay.dim();
         let vdim = self.terms.vdim();
         let segments = self.terms.basis.as_ref().map_or(1, Basis::dim);
-        let gn_passes = if matches!(ds.map, ReadoutMap::Amplifier { .. }) {
+        let gn_passes = if linear_only || matches!(ds.map, ReadoutMap::Amplifier { .. }) {
             0
         } else {
             2

@@ -133,12 +133,16 @@ fn evaluate_inner(
             r: cfg.floor(),
             groups: shared_locals(&terms, n, &fit_idx),
         };
-        // After the first iteration each node starts from its own last parameters.
+        // After the first iteration each node starts from its own last parameters. The first
+        // of several takes the linearisation at the observations only: the factor it is fitted
+        // against moves before the next, which takes a Gauss-Newton pass from there.
         let warm = (it > 0).then_some(&theta);
-        (theta, locals) =
-            crate::parallel::map(n, |k| fit.node(k, &m, warm.map(|t| t[k].as_slice())))
-                .into_iter()
-                .unzip();
+        let linear_only = it == 0 && iterations > 1;
+        (theta, locals) = crate::parallel::map(n, |k| {
+            fit.node(k, &m, warm.map(|t| t[k].as_slice()), linear_only)
+        })
+        .into_iter()
+        .unzip();
         if it + 1 == iterations {
             break;
         }
