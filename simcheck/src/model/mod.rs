@@ -402,14 +402,32 @@ mod tests {
 
     #[test]
     fn each_node_gets_its_own_sensitivity_in_each_trial() {
+        // Through the amplifier (linear in conductance: no Gauss-Newton passes) and through a
+        // falling divider (whose alternation's first fit takes none, the next two one each).
+        let amplifier =
+            crate::data::ReadoutMap::from_readout(&taxel_sim::SensorModel::default().readout);
+        let divider = crate::data::ReadoutMap::Divider {
+            max: 4095.0,
+            r_ref: 10_000.0,
+            rises: false,
+        };
+        // The fit's RMS bound: on the divider the fit leaves about 2 counts (0.05 % of its
+        // range; the same, to six digits, before the alternation's first fit took no pass).
+        // Where they come from was not looked into.
+        for (map, max_rms) in [(amplifier, 0.1), (divider, 4.0)] {
+            per_trial_sensitivities_are_recovered(map, max_rms);
+        }
+    }
+
+    fn per_trial_sensitivities_are_recovered(map: crate::data::ReadoutMap, max_rms: f64) {
         // Two nodes, three mountings: node 0's sensitivity falls 0.8x in trial 1 and node
-        // 1's rises 1.25x in trial 2 (a contact spot that moved), read through the amplifier.
+        // 1's rises 1.25x in trial 2 (a contact spot that moved).
         let mut ds = crate::testdata::presses_on(1, 2);
         let len = ds.len();
         ds.trial = (0..len).map(|i| i * 3 / len).collect();
         ds.n_trials = 3;
         ds.trial_recorded = true;
-        ds.map = crate::data::ReadoutMap::from_readout(&taxel_sim::SensorModel::default().readout);
+        ds.map = map;
         let factor = |j: usize, k: usize| match (j, k) {
             (1, 0) => 0.8,
             (2, 1) => 1.25,
@@ -435,7 +453,7 @@ mod tests {
         for (j, k) in [(1, 0), (2, 0), (1, 1), (2, 1)] {
             assert!(
                 (rel(j, k) - factor(j, k)).abs() < 0.02,
-                "trial {j} node {k}: {} {g:?}",
+                "{map:?} trial {j} node {k}: {} {g:?}",
                 rel(j, k)
             );
         }
@@ -446,7 +464,7 @@ mod tests {
             .map(|(p, y)| (p - ds.map.dom(*y)).powi(2))
             .sum::<f64>()
             / (2 * len) as f64;
-        assert!(fit < 0.01, "rms {}", fit.sqrt());
+        assert!(fit.sqrt() < max_rms, "{map:?} rms {}", fit.sqrt());
     }
 
     #[test]
