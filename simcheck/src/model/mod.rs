@@ -413,7 +413,8 @@ mod tests {
         };
         // The fit's RMS bound: on the divider the fit leaves about 2 counts (0.05 % of its
         // range; the same, to six digits, before the alternation's first fit took no pass).
-        // Where they come from was not looked into.
+        // Not the alternation's: twelve fits instead of three leave the same 2.047 counts and
+        // the same factors to five digits.
         for (map, max_rms) in [(amplifier, 0.1), (divider, 4.0)] {
             per_trial_sensitivities_are_recovered(map, max_rms);
         }
