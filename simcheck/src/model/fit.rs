@@ -387,27 +387,31 @@ impl NodeFit<'_> {
     pub(super) fn node_trial_gains(
         &self,
         theta: &[Vec<f64>],
+        locals: &[Arc<Locals>],
         m: &[f64],
         trials: usize,
     ) -> Vec<f64> {
         let ds = self.ctx.ds;
         let n = ds.n;
+        let o = self.terms.lay.law_start();
         let mut num = vec![0.0; trials * n];
         let mut den = vec![0.0; trials * n];
-        for (jj, &i) in self.fit_idx.iter().enumerate() {
-            let j = ds.trial[i];
-            let mi = m[i];
-            for (k, th) in theta.iter().enumerate().take(n) {
-                let idx = k * self.fit_idx.len() + jj;
-                let w = self.obs.wgt[idx] * mi * mi;
+        for (k, (th, loc)) in theta.iter().zip(locals).enumerate().take(n) {
+            let base = k * self.fit_idx.len();
+            for (jj, &i) in self.fit_idx.iter().enumerate() {
+                let mi = m[i];
+                let w = self.obs.wgt[base + jj] * mi * mi;
                 if w == 0.0 {
                     continue;
                 }
-                // The force term before the node's own factor, and what the rest contributes.
-                let q = self.terms.law(th, k, i, jj) * self.terms.sens[i];
+                let j = ds.trial[i];
                 let own = self.terms.node_sens[j * n + k];
-                let rest = self.terms.z(th, k, i, jj) - own * q;
-                num[j * n + k] += w * q * (self.obs.g2[idx] / mi - rest);
+                // What the regressors before the law contribute, and the force term before
+                // the node's own factor (its local values carry that factor).
+                let (seg, v) = loc.at(jj);
+                let rest: f64 = th[..o].iter().zip(&v[..o]).map(|(t, x)| t * x).sum();
+                let q = (self.terms.z_local(th, seg, v) - rest) / own;
+                num[j * n + k] += w * q * (self.obs.g2[base + jj] / mi - rest);
                 den[j * n + k] += w * q * q;
             }
         }

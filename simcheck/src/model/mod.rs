@@ -152,7 +152,7 @@ fn evaluate_inner(
         }
         if let Some(g) = &mut gains {
             *g = match cfg.curv_per_node {
-                Some(nn) => fit.node_trial_gains(&theta, &m, g.len() / nn.max(1)),
+                Some(nn) => fit.node_trial_gains(&theta, &locals, &m, g.len() / nn.max(1)),
                 None => fit.trial_gains(&theta, &m, g.len()),
             };
         }
