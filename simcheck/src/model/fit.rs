@@ -383,7 +383,8 @@ impl NodeFit<'_> {
     /// Each node's sensitivity factor per trial (trial `j`, node `k` at `j n + k`) given the
     /// nodes' parameters, in closed form as [`NodeFit::trial_gains`] but node by node, each
     /// node's factors normalised to a mean of 1 over the trials it is loaded in (its gain
-    /// carries its scale).
+    /// carries its scale). Read from `locals`, each node's local regressors of the fit that
+    /// gave its parameters (they carry its factor of that fit).
     pub(super) fn node_trial_gains(
         &self,
         theta: &[Vec<f64>],
