@@ -394,7 +394,6 @@ impl NodeFit<'_> {
     ) -> Vec<f64> {
         let ds = self.ctx.ds;
         let n = ds.n;
-        let o = self.terms.lay.law_start();
         let mut num = vec![0.0; trials * n];
         let mut den = vec![0.0; trials * n];
         for (k, (th, loc)) in theta.iter().zip(locals).enumerate().take(n) {
@@ -410,8 +409,8 @@ impl NodeFit<'_> {
                 // What the regressors before the law contribute, and the force term before
                 // the node's own factor (its local values carry that factor).
                 let (seg, v) = loc.at(jj);
-                let rest: f64 = th[..o].iter().zip(&v[..o]).map(|(t, x)| t * x).sum();
-                let q = (self.terms.z_local(th, seg, v) - rest) / own;
+                let (rest, z) = self.terms.z_local_parts(th, seg, v);
+                let q = (z - rest) / own;
                 num[j * n + k] += w * q * (self.obs.g2[base + jj] / mi - rest);
                 den[j * n + k] += w * q * q;
             }

@@ -152,16 +152,23 @@ impl Terms {
 
     /// The prediction `theta . x` from local values `v` in segment `s`.
     pub(super) fn z_local(&self, th: &[f64], s: usize, v: &[f64]) -> f64 {
+        self.z_local_parts(th, s, v).1
+    }
+
+    /// What the regressors before the law contribute to [`Terms::z_local`], and the whole.
+    #[inline(always)]
+    pub(super) fn z_local_parts(&self, th: &[f64], s: usize, v: &[f64]) -> (f64, f64) {
         let o = self.lay.law_start();
         let z: f64 = th[..o].iter().zip(&v[..o]).map(|(t, x)| t * x).sum();
-        match &self.basis {
+        let whole = match &self.basis {
             None => z + th[o] * v[o],
             Some(b) => {
                 let c = &th[o..];
                 let below: f64 = c[..s].iter().zip(b.full()).map(|(c, f)| c * f).sum();
                 z + v[o] * below + c[s] * v[o + 1] + c.get(s + 1).map_or(0.0, |cn| cn * v[o + 2])
             }
-        }
+        };
+        (z, whole)
     }
 
     /// Node `k`'s static law at sample `i` (the `j`-th the fit looks at), before the
