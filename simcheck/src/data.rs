@@ -139,6 +139,29 @@ impl ReadoutMap {
         }
     }
 
+    /// The residual domain at reading `y0` and its change from there to a nearby `y1`. For a
+    /// resistance the change is `ln(1 + x)`, `x = (y1 - y0) / y0`, from its series when `x` is
+    /// small (as accurate as the difference of two logarithms, at the cost of none).
+    #[inline]
+    pub fn dom_step(&self, y0: f64, y1: f64) -> (f64, f64) {
+        match self {
+            ReadoutMap::Resistance if y0 >= 0.5 && y1 >= 0.5 => {
+                let x = (y1 - y0) / y0;
+                let change = if x.abs() < 1e-3 {
+                    // The first term left out is below 2e-13 of the change.
+                    x * (1.0 - x * (0.5 - x * (1.0 / 3.0 - x * 0.25)))
+                } else {
+                    x.ln_1p()
+                };
+                (y0.ln(), change)
+            }
+            _ => {
+                let f0 = self.dom(y0);
+                (f0, self.dom(y1) - f0)
+            }
+        }
+    }
+
     /// d(dom)/dG at conductance `g` (for weighting fits done in conductance).
     pub fn ddom_dg(&self, g: f64) -> f64 {
         let g = g.max(1e-12);

@@ -220,13 +220,15 @@ impl NodeFit<'_> {
     /// takes one Gauss-Newton pass, not the linearisation at the observations and two passes
     /// (the thermal factor has moved a little since). `linear_only`: the linearisation at the
     /// observations alone, no pass (the alternation's first fit: its factor moves before the
-    /// next fit, which takes a pass from there).
+    /// next fit, which takes a pass from there). `reuse`: the node's local regressors from the
+    /// previous iteration, when nothing they depend on has changed since.
     pub(super) fn node(
         &self,
         k: usize,
         m: &[f64],
         warm: Option<&[f64]>,
         linear_only: bool,
+        reuse: Option<&Arc<Locals>>,
     ) -> (Vec<f64>, Arc<Locals>) {
         let ds = self.ctx.ds;
         let lay = &self.terms.lay;
@@ -244,13 +246,17 @@ impl NodeFit<'_> {
         };
         let base = k * self.fit_idx.len();
         let shared = self.terms.group(k).and_then(|(g, _)| self.groups.get(g));
-        let locals = match shared {
-            Some(l) => l.clone(),
-            None => Arc::new(Locals::new(self.terms, k, self.fit_idx)),
+        let locals = match (reuse, shared) {
+            (Some(l), _) | (None, Some(l)) => l.clone(),
+            (None, None) => Arc::new(Locals::new(self.terms, k, self.fit_idx)),
         };
+        // Summed per knot segment and, with per-node factors, per trial (see
+        // [`Terms::factor_blocks`]).
+        let blocks = self.terms.factor_blocks();
+        let sections = segments * blocks;
         for pass in first..=gn_passes {
-            let mut s_loc = vec![0.0; segments * vdim * vdim];
-            let mut r_loc = vec![0.0; segments * vdim];
+            let mut s_loc = vec![0.0; sections * vdim * vdim];
+            let mut r_loc = vec![0.0; sections * vdim];
             for (j, &i) in self.fit_idx.iter().enumerate() {
                 let w = self.obs.wgt[base + j];
                 if w == 0.0 {
@@ -258,24 +264,26 @@ impl NodeFit<'_> {
                 }
                 let mi = m[i];
                 let (seg, v) = locals.at(j);
+                let (t, f) = self.terms.factor_at(k, i);
                 let (z, w) = if pass == 0 {
                     (self.obs.g2[base + j] / mi, w * mi * mi)
                 } else {
-                    let zh = self.terms.z_local(&th, seg, v).max(1e-15);
-                    let dom_of = |z: f64| {
+                    let zh = self.terms.z_local_factor(&th, seg, v, f).1.max(1e-15);
+                    let reading = |z: f64| {
                         let g = (mi * z).max(1e-15);
-                        ds.map.dom(ds.map.from_g(g / (1.0 + self.r * g)))
+                        ds.map.from_g(g / (1.0 + self.r * g))
                     };
-                    let f0 = dom_of(zh);
-                    let d = (dom_of(zh * (1.0 + 1e-4)) - f0) / (zh * 1e-4);
+                    let (f0, change) = ds.map.dom_step(reading(zh), reading(zh * (1.0 + 1e-4)));
+                    let d = change / (zh * 1e-4);
                     if !d.is_finite() || d == 0.0 {
                         continue;
                     }
                     (zh + (self.obs.readings.dom[base + j] - f0) / d, d * d)
                 };
+                let sec = seg * blocks + t;
                 let (sa, rb) = (
-                    &mut s_loc[seg * vdim * vdim..(seg + 1) * vdim * vdim],
-                    &mut r_loc[seg * vdim..(seg + 1) * vdim],
+                    &mut s_loc[sec * vdim * vdim..(sec + 1) * vdim * vdim],
+                    &mut r_loc[sec * vdim..(sec + 1) * vdim],
                 );
                 accumulate(sa, rb, v, w, z);
             }
@@ -283,13 +291,18 @@ impl NodeFit<'_> {
             let mut b = vec![0.0; pdim];
             for seg in 0..segments {
                 let map = RowMap::new(self.terms.basis.as_ref(), seg, lay.law_start() - 1);
-                map.add(
-                    &s_loc[seg * vdim * vdim..(seg + 1) * vdim * vdim],
-                    &r_loc[seg * vdim..(seg + 1) * vdim],
-                    vdim,
-                    &mut a,
-                    &mut b,
-                );
+                for t in 0..blocks {
+                    let sec = seg * blocks + t;
+                    let (sa, rb) = (
+                        &mut s_loc[sec * vdim * vdim..(sec + 1) * vdim * vdim],
+                        &mut r_loc[sec * vdim..(sec + 1) * vdim],
+                    );
+                    if blocks > 1 {
+                        let f = self.terms.factor_at_block(k, t);
+                        self.terms.scale_block(sa, rb, f);
+                    }
+                    map.add(sa, rb, vdim, &mut a, &mut b);
+                }
             }
             for u in 0..pdim {
                 for w in u + 1..pdim {
@@ -407,9 +420,9 @@ impl NodeFit<'_> {
                 let j = ds.trial[i];
                 let own = self.terms.node_sens[j * n + k];
                 // What the regressors before the law contribute, and the force term before
-                // the node's own factor (its local values carry that factor).
+                // the node's own factor (its local values carry that factor once applied).
                 let (seg, v) = loc.at(jj);
-                let (rest, z) = self.terms.z_local_parts(th, seg, v);
+                let (rest, z) = self.terms.z_local_factor(th, seg, v, own);
                 let q = (z - rest) / own;
                 num[j * n + k] += w * q * (self.obs.g2[base + jj] / mi - rest);
                 den[j * n + k] += w * q * q;

@@ -111,6 +111,10 @@ fn evaluate_inner(
     } else {
         1
     };
+    // The local regressors carry neither the thermal factor nor a node's own per-trial
+    // factors: built once, unless a per-trial sensitivity shared by the nodes changes them.
+    let shared_trial_gains = gains.is_some() && cfg.curv_per_node.is_none();
+    let mut groups = Vec::new();
     for it in 0..iterations {
         if let Some((knots, values)) = &latent {
             apply_latent(ctx, knots, values, &mut m);
@@ -125,21 +129,26 @@ fn evaluate_inner(
             (Some(g), None) => terms.sens = ds.trial.iter().map(|&j| g[j]).collect(),
             _ => {}
         }
+        let rebuild = it == 0 || shared_trial_gains;
+        if rebuild {
+            groups = shared_locals(&terms, n, &fit_idx);
+        }
         let fit = NodeFit {
             ctx,
             terms: &terms,
             obs: &obs,
             fit_idx: &fit_idx,
             r: cfg.floor(),
-            groups: shared_locals(&terms, n, &fit_idx),
+            groups: groups.clone(),
         };
         // After the first iteration each node starts from its own last parameters. The first
         // of several takes the linearisation at the observations only: the factor it is fitted
         // against moves before the next, which takes a Gauss-Newton pass from there.
         let warm = (it > 0).then_some(&theta);
         let linear_only = it == 0 && iterations > 1;
+        let reuse = if rebuild { &[][..] } else { &locals[..] };
         (theta, locals) = crate::parallel::map(n, |k| {
-            fit.node(k, &m, warm.map(|t| t[k].as_slice()), linear_only)
+            fit.node(k, &m, warm.map(|t| t[k].as_slice()), linear_only, reuse.get(k))
         })
         .into_iter()
         .unzip();
@@ -264,7 +273,8 @@ impl Evaluated<'_> {
         match self.locals.get(k) {
             Some(l) if fitted => {
                 let (seg, v) = l.at(j);
-                self.terms.z_local(&self.theta[k], seg, v)
+                let f = self.terms.factor_at(k, i).1;
+                self.terms.z_local_factor(&self.theta[k], seg, v, f).1
             }
             _ => self.terms.z(&self.theta[k], k, i, j),
         }

@@ -92,7 +92,7 @@ impl Terms {
     /// Whether every node's local regressors are the same (one load series for every node,
     /// no per-node scan lag): the nodes differ in their parameters only.
     pub(super) fn node_independent(&self) -> bool {
-        self.loads.shared() && self.node_sens.is_empty()
+        self.loads.shared()
     }
 
     /// The group of nodes whose local regressors are node `k`'s too (the nodes reading the
@@ -100,7 +100,7 @@ impl Terms {
     /// `None` when each node's are its own.
     pub(super) fn group(&self, k: usize) -> Option<(usize, usize)> {
         let (count, lag_free) = self.loads.distinct();
-        (lag_free && self.node_sens.is_empty()).then(|| (self.loads.series(k), count))
+        lag_free.then(|| (self.loads.series(k), count))
     }
 
     /// Node `k`'s sensitivity factor at sample `i`.
@@ -108,7 +108,56 @@ impl Terms {
         if self.node_sens.is_empty() {
             self.sens[i]
         } else {
-            self.sens[i] * self.node_sens[self.trials[i] * self.n + k]
+            self.sens[i] * self.node_factor(k, i)
+        }
+    }
+
+    /// Node `k`'s own per-trial factor at sample `i` (1 without per-node factors).
+    pub(super) fn node_factor(&self, k: usize, i: usize) -> f64 {
+        if self.node_sens.is_empty() {
+            1.0
+        } else {
+            self.node_sens[self.trials[i] * self.n + k]
+        }
+    }
+
+    /// How many blocks a node's normal equations are summed in before its own per-trial
+    /// factors scale them: one per trial with per-node factors, else one.
+    pub(super) fn factor_blocks(&self) -> usize {
+        if self.node_sens.is_empty() {
+            1
+        } else {
+            self.node_sens.len() / self.n.max(1)
+        }
+    }
+
+    /// Sample `i`'s block (see [`Terms::factor_blocks`]) and node `k`'s own factor there.
+    pub(super) fn factor_at(&self, k: usize, i: usize) -> (usize, f64) {
+        if self.node_sens.is_empty() {
+            (0, 1.0)
+        } else {
+            let t = self.trials[i];
+            (t, self.node_sens[t * self.n + k])
+        }
+    }
+
+    /// Node `k`'s own factor in block `t` (see [`Terms::factor_blocks`]).
+    pub(super) fn factor_at_block(&self, k: usize, t: usize) -> f64 {
+        self.node_sens.get(t * self.n + k).copied().unwrap_or(1.0)
+    }
+
+    /// The normal equations of one block (lower triangle `s`, right side `r`, summed over
+    /// local values without the node's own factor) scaled to local values with factor `f`:
+    /// it multiplies the regressors from the hysteresis terms on (see [`Terms::local`]).
+    pub(super) fn scale_block(&self, s: &mut [f64], r: &mut [f64], f: f64) {
+        let vdim = self.vdim();
+        let h = self.lay.hyst_index();
+        let d = |u: usize| if u >= h { f } else { 1.0 };
+        for u in 0..vdim {
+            r[u] *= d(u);
+            for w in 0..=u {
+                s[u * vdim + w] *= d(u) * d(w);
+            }
         }
     }
 
@@ -120,13 +169,15 @@ impl Terms {
     /// Node `k`'s local regressors at sample `i`, the `j`-th the fit looks at (written into
     /// `v`, [`Terms::vdim`] long: 1, the curvature-baseline and hysteresis regressors, and the
     /// law's value (power) or the sensitivity and the two values that vary within the load's
-    /// knot segment (spline), see [`crate::law::RowMap`]); returns the segment.
+    /// knot segment (spline), see [`crate::law::RowMap`]); returns the segment. Without the
+    /// node's own per-trial factor (see [`Terms::with_node_factor`]): nodes that read the same
+    /// load share them, and they stay as the factors are refitted.
     pub(super) fn local(&self, k: usize, i: usize, j: usize, v: &mut [f64]) -> usize {
         v[0] = 1.0;
         if self.lay.curv_k {
             v[self.lay.n_int] = self.curv_x[i];
         }
-        let sk = self.s(k, i);
+        let sk = self.sens[i];
         if self.lay.hyst > 0 {
             v[self.lay.hyst_index()] = sk * self.hyst[i];
         }
@@ -150,12 +201,30 @@ impl Terms {
         }
     }
 
-    /// The prediction `theta . x` from local values `v` in segment `s`.
-    pub(super) fn z_local(&self, th: &[f64], s: usize, v: &[f64]) -> f64 {
-        self.z_local_parts(th, s, v).1
+    /// [`Terms::z_local_parts`] (the part before the law, and the whole) with the node's own factor `f` applied to the regressors it
+    /// scales (local values `v` come without it; see [`Terms::local`]).
+    #[inline(always)]
+    pub(super) fn z_local_factor(&self, th: &[f64], s: usize, v: &[f64], f: f64) -> (f64, f64) {
+        if self.node_sens.is_empty() {
+            return self.z_local_parts(th, s, v);
+        }
+        let (h, o) = (self.lay.hyst_index(), self.lay.law_start());
+        let fixed: f64 = th[..h].iter().zip(&v[..h]).map(|(t, x)| t * x).sum();
+        let hyst: f64 = th[h..o].iter().zip(&v[h..o]).map(|(t, x)| t * x).sum();
+        let rest = fixed + f * hyst;
+        let c = &th[o..];
+        let law = match &self.basis {
+            None => c[0] * v[o],
+            Some(b) => {
+                let below: f64 = c[..s].iter().zip(b.full()).map(|(c, f)| c * f).sum();
+                v[o] * below + c[s] * v[o + 1] + c.get(s + 1).map_or(0.0, |cn| cn * v[o + 2])
+            }
+        };
+        (rest, rest + f * law)
     }
 
-    /// What the regressors before the law contribute to [`Terms::z_local`], and the whole.
+    /// The prediction `theta . x` from local values `v` in segment `s` (the whole), and what
+    /// the regressors before the law contribute to it.
     #[inline(always)]
     pub(super) fn z_local_parts(&self, th: &[f64], s: usize, v: &[f64]) -> (f64, f64) {
         let o = self.lay.law_start();
