@@ -140,26 +140,53 @@ impl ReadoutMap {
     }
 
     /// The residual domain at reading `y0` and its change from there to a nearby `y1`. For a
-    /// resistance the change is `ln(1 + x)`, `x = (y1 - y0) / y0`, from its series when `x` is
-    /// small (as accurate as the difference of two logarithms, at the cost of none).
+    /// resistance the change is `ln(1 + x)`, `x = (y1 - y0) / y0` (see [`ln_1p_near_zero`]).
     #[inline]
     pub fn dom_step(&self, y0: f64, y1: f64) -> (f64, f64) {
         match self {
             ReadoutMap::Resistance if y0 >= 0.5 && y1 >= 0.5 => {
-                let x = (y1 - y0) / y0;
-                let change = if x.abs() < 1e-3 {
-                    // The first term left out is below 2e-13 of the change.
-                    x * (1.0 - x * (0.5 - x * (1.0 / 3.0 - x * 0.25)))
-                } else {
-                    x.ln_1p()
-                };
-                (y0.ln(), change)
+                (y0.ln(), ln_1p_near_zero((y1 - y0) / y0))
             }
             _ => {
                 let f0 = self.dom(y0);
                 (f0, self.dom(y1) - f0)
             }
         }
+    }
+
+    /// The residual domain of the reading of conductance `g` seen through a series
+    /// resistance `r` (`g / (1 + r g)`), and its change when `g` grows by the factor
+    /// `1 + eps`: the difference [`ReadoutMap::dom_step`] takes between the two readings, in
+    /// closed form where no floor or clamp acts (the same difference, exact rather than
+    /// between two nearby values, with two divisions instead of five).
+    #[inline]
+    pub fn dom_step_g(&self, g: f64, r: f64, eps: f64) -> (f64, f64) {
+        let rg = 1.0 + r * g;
+        match *self {
+            ReadoutMap::Resistance if g >= 1e-12 * rg => {
+                // The reading (1 + r g) / g falls by the factor 1 + x.
+                let y0 = rg / g;
+                let x = -eps / ((1.0 + eps) * rg);
+                if y0 >= 0.5 && y0 * (1.0 + x) >= 0.5 {
+                    return (y0.ln(), ln_1p_near_zero(x));
+                }
+            }
+            ReadoutMap::Divider { max, r_ref, rises } if g >= 1e-12 * rg => {
+                // max (1 + r g) / (1 + (r + R) g) falling; max minus that rising.
+                let d0 = 1.0 + (r + r_ref) * g;
+                let d1 = 1.0 + (r + r_ref) * g * (1.0 + eps);
+                let fall = max * rg / d0;
+                let change = max * r_ref * g * eps / (d0 * d1);
+                return if rises {
+                    (max - fall, change)
+                } else {
+                    (fall, -change)
+                };
+            }
+            _ => {}
+        }
+        let reading = |g: f64| self.from_g(g / (1.0 + r * g));
+        self.dom_step(reading(g), reading(g * (1.0 + eps)))
     }
 
     /// d(dom)/dG at conductance `g` (for weighting fits done in conductance).
@@ -524,6 +551,18 @@ fn median_step(t: &[f64]) -> f64 {
     d[d.len() / 2].max(1e-6)
 }
 
+/// `ln(1 + x)`, from its series when `x` is small (|x| < 1e-3: the first term left out is
+/// below 2e-13 of the value; as accurate as the difference of two logarithms, at the cost of
+/// none).
+#[inline]
+fn ln_1p_near_zero(x: f64) -> f64 {
+    if x.abs() < 1e-3 {
+        x * (1.0 - x * (0.5 - x * (1.0 / 3.0 - x * 0.25)))
+    } else {
+        x.ln_1p()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -574,5 +613,34 @@ mod tests {
         assert!(!ReadoutMap::from_readout(&r).rises());
         r.divider_rises = true;
         assert!(ReadoutMap::from_readout(&r).rises());
+    }
+
+    #[test]
+    fn the_closed_form_step_is_the_difference_of_the_two_readings() {
+        let div = |rises| ReadoutMap::Divider {
+            max: 1023.0,
+            r_ref: 1000.0,
+            rises,
+        };
+        let eps = 1e-4;
+        for m in [ReadoutMap::Resistance, div(false), div(true)] {
+            // From well inside the range to where a floor or clamp acts (conductance below
+            // 1e-12 S, a resistance under 0.5 ohm).
+            for g in [1e-14, 1e-11, 1e-6, 1e-4, 1e-2, 1.0, 3.0] {
+                for r in [0.0, 50.0] {
+                    let (f0, change) = m.dom_step_g(g, r, eps);
+                    let reading = |g: f64| m.dom(m.from_g(g / (1.0 + r * g)));
+                    let (a, b) = (reading(g), reading(g * (1.0 + eps)));
+                    assert!((f0 - a).abs() <= 1e-12 * a.abs().max(1.0), "{m:?} {g} {r}");
+                    // The difference of two readings loses digits to cancellation.
+                    let tol = 1e-9 * (b - a).abs() + 1e-12 * a.abs().max(1.0);
+                    assert!(
+                        (change - (b - a)).abs() <= tol,
+                        "{m:?} {g} {r}: {change} {}",
+                        b - a
+                    );
+                }
+            }
+        }
     }
 }
