@@ -299,10 +299,14 @@ impl Selection<'_> {
     pub(crate) fn round(&mut self, round: usize) -> bool {
         // The static law again once an effect has joined: what the effect took out of the
         // residual may have hidden the law's shape in round 0 (a drift's slow share, for one).
+        let sp = crate::timing::span("  static law again");
         if round >= 2 && self.cur.law == Law::Power && self.spline(round, &[self.spline_m]) {
             self.retest_static();
         }
+        drop(sp);
+        let sp = crate::timing::span("  sensitivity reformed");
         self.reform_sensitivity(round);
+        drop(sp);
         let mut accepted: Vec<Best> = Vec::new();
         // Saturation and crosstalk belong to the static law: decided in round 0.
         let todo: Vec<EffectKind> = EffectKind::ALL
@@ -347,11 +351,13 @@ impl Selection<'_> {
             }
             tested.insert(e, (cv, v));
         }
+        let sp = crate::timing::span("  pairs tested jointly");
         for (pair, cv, v) in self.joint_pairs(round, &tested) {
             if v.accepted {
                 accepted.push((pair.to_vec(), cv, v));
             }
         }
+        drop(sp);
         let Some((effects, cv, _)) = self.best_standing(round, accepted) else {
             return false;
         };
