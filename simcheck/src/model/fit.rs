@@ -24,8 +24,8 @@ const GN_STEP_TOL: f64 = 1e-3;
 /// of each observation in the residual domain (0: unusable), at the fit's samples only, node
 /// by node (`k * m + j` for the `j`-th of `m` samples: each node's fit reads its own run).
 pub struct Observed {
-    g2: Vec<f64>,
-    wgt: Vec<f64>,
+    pub(super) g2: Vec<f64>,
+    pub(super) wgt: Vec<f64>,
     /// The readings at the same samples in the same order.
     readings: std::sync::Arc<Readings>,
 }
@@ -212,16 +212,15 @@ impl NodeFit<'_> {
     /// linear in conductance (resistance, divider) a few Gauss-Newton passes linearise the
     /// residual domain around the current prediction instead of the observation (whose 1/G^2
     /// weights would favour the highest-resistance samples); the last is left out when the one
-    /// before barely moved the fit (see [`GN_STEP_TOL`]). The normal equations are summed
-    /// per knot segment over the local regressors and then mapped to the full row (one
-    /// segment for the power law; see [`crate::law::RowMap`]). `warm`: the node's parameters
-    /// from the evaluation's previous iteration (a latent drift or per-trial sensitivities are
-    /// fitted with the nodes, alternately); such a readout's fit then starts from them and
-    /// takes one Gauss-Newton pass, not the linearisation at the observations and two passes
-    /// (the thermal factor has moved a little since). `linear_only`: the linearisation at the
-    /// observations alone, no pass (the alternation's first fit: its factor moves before the
-    /// next fit, which takes a pass from there). `reuse`: the node's local regressors from the
-    /// previous iteration, when nothing they depend on has changed since.
+    /// before barely moved the fit (see [`GN_STEP_TOL`]). The normal equations are those of
+    /// [`NodeFit::block_equations`]. `warm`: the node's parameters from an earlier fit of the
+    /// same evaluation (a latent drift or per-trial sensitivities are fitted with the nodes,
+    /// alternately); such a readout's fit then starts from them and takes one Gauss-Newton
+    /// pass, not the linearisation at the observations and two passes. `linear_only`: the
+    /// linearisation at the observations alone, no pass (the alternation's fits before the
+    /// last: the factors are fitted at that linearisation too). `reuse`: the node's local
+    /// regressors from an earlier fit, when nothing they depend on has changed since. `own`:
+    /// the node's per-trial factors, when not those in [`Terms`].
     pub(super) fn node(
         &self,
         k: usize,
@@ -229,12 +228,10 @@ impl NodeFit<'_> {
         warm: Option<&[f64]>,
         linear_only: bool,
         reuse: Option<&Arc<Locals>>,
+        own: Option<&[f64]>,
     ) -> (Vec<f64>, Arc<Locals>) {
         let ds = self.ctx.ds;
-        let lay = &self.terms.lay;
-        let pdim = lay.dim();
-        let vdim = self.terms.vdim();
-        let segments = self.terms.basis.as_ref().map_or(1, Basis::dim);
+        let pdim = self.terms.lay.dim();
         let gn_passes = if linear_only || matches!(ds.map, ReadoutMap::Amplifier { .. }) {
             0
         } else {
@@ -244,71 +241,14 @@ impl NodeFit<'_> {
             Some(w) if gn_passes > 0 && w.len() == pdim => (w.to_vec(), gn_passes),
             _ => (vec![0.0; pdim], 0),
         };
-        let base = k * self.fit_idx.len();
-        let shared = self.terms.group(k).and_then(|(g, _)| self.groups.get(g));
-        let locals = match (reuse, shared) {
-            (Some(l), _) | (None, Some(l)) => l.clone(),
-            (None, None) => Arc::new(Locals::new(self.terms, k, self.fit_idx)),
+        let locals = self.locals(k, reuse);
+        let own = match own {
+            Some(o) => o.to_vec(),
+            None => self.own_factors(k),
         };
-        // Summed per knot segment and, with per-node factors, per trial (see
-        // [`Terms::factor_blocks`]).
-        let blocks = self.terms.factor_blocks();
-        let sections = segments * blocks;
         for pass in first..=gn_passes {
-            let mut s_loc = vec![0.0; sections * vdim * vdim];
-            let mut r_loc = vec![0.0; sections * vdim];
-            for (j, &i) in self.fit_idx.iter().enumerate() {
-                let w = self.obs.wgt[base + j];
-                if w == 0.0 {
-                    continue;
-                }
-                let mi = m[i];
-                let (seg, v) = locals.at(j);
-                let (t, f) = self.terms.factor_at(k, i);
-                let (z, w) = if pass == 0 {
-                    (self.obs.g2[base + j] / mi, w * mi * mi)
-                } else {
-                    let zh = self.terms.z_local_factor(&th, seg, v, f).1.max(1e-15);
-                    let reading = |z: f64| {
-                        let g = (mi * z).max(1e-15);
-                        ds.map.from_g(g / (1.0 + self.r * g))
-                    };
-                    let (f0, change) = ds.map.dom_step(reading(zh), reading(zh * (1.0 + 1e-4)));
-                    let d = change / (zh * 1e-4);
-                    if !d.is_finite() || d == 0.0 {
-                        continue;
-                    }
-                    (zh + (self.obs.readings.dom[base + j] - f0) / d, d * d)
-                };
-                let sec = seg * blocks + t;
-                let (sa, rb) = (
-                    &mut s_loc[sec * vdim * vdim..(sec + 1) * vdim * vdim],
-                    &mut r_loc[sec * vdim..(sec + 1) * vdim],
-                );
-                accumulate(sa, rb, v, w, z);
-            }
-            let mut a = vec![0.0; pdim * pdim];
-            let mut b = vec![0.0; pdim];
-            for seg in 0..segments {
-                let map = RowMap::new(self.terms.basis.as_ref(), seg, lay.law_start() - 1);
-                for t in 0..blocks {
-                    let sec = seg * blocks + t;
-                    let (sa, rb) = (
-                        &mut s_loc[sec * vdim * vdim..(sec + 1) * vdim * vdim],
-                        &mut r_loc[sec * vdim..(sec + 1) * vdim],
-                    );
-                    if blocks > 1 {
-                        let f = self.terms.factor_at_block(k, t);
-                        self.terms.scale_block(sa, rb, f);
-                    }
-                    map.add(sa, rb, vdim, &mut a, &mut b);
-                }
-            }
-            for u in 0..pdim {
-                for w in u + 1..pdim {
-                    a[u * pdim + w] = a[w * pdim + u];
-                }
-            }
+            let eqs = self.block_equations(k, m, &locals, (pass > 0).then_some(&th), &own);
+            let (mut a, mut b) = self.combine(eqs, &own);
             // The normal equations as summed (the solver ridges them in place), to measure a
             // Gauss-Newton step by.
             let gram = (pass > 0 && pass < gn_passes).then(|| a.clone());
@@ -322,10 +262,135 @@ impl NodeFit<'_> {
         (th, locals)
     }
 
+    /// Node `k`'s local regressors: `reuse`d, its group's, or computed.
+    pub(super) fn locals(&self, k: usize, reuse: Option<&Arc<Locals>>) -> Arc<Locals> {
+        let shared = self.terms.group(k).and_then(|(g, _)| self.groups.get(g));
+        match (reuse, shared) {
+            (Some(l), _) | (None, Some(l)) => l.clone(),
+            (None, None) => Arc::new(Locals::new(self.terms, k, self.fit_idx)),
+        }
+    }
+
+    /// Node `k`'s own factor in each block (see [`Terms::factor_blocks`]).
+    pub(super) fn own_factors(&self, k: usize) -> Vec<f64> {
+        (0..self.terms.factor_blocks())
+            .map(|t| self.terms.factor_at_block(k, t))
+            .collect()
+    }
+
+    /// Node `k`'s normal equations per block (see [`Terms::factor_blocks`]; the lower
+    /// triangle of the full row's, and the right side), summed per knot segment over the
+    /// local values without the node's own factor and then mapped to the full row (one
+    /// segment for the power law; see [`crate::law::RowMap`]). At the linearisation at the
+    /// observations (`th` none), or a Gauss-Newton pass's at the prediction of `th` with the
+    /// node's factor `own` in each block.
+    pub(super) fn block_equations(
+        &self,
+        k: usize,
+        m: &[f64],
+        locals: &Locals,
+        th: Option<&[f64]>,
+        own: &[f64],
+    ) -> Vec<(Vec<f64>, Vec<f64>)> {
+        let ds = self.ctx.ds;
+        let lay = &self.terms.lay;
+        let pdim = lay.dim();
+        let vdim = self.terms.vdim();
+        let segments = self.terms.basis.as_ref().map_or(1, Basis::dim);
+        let blocks = own.len().max(1);
+        let sections = segments * blocks;
+        let base = k * self.fit_idx.len();
+        let mut s_loc = vec![0.0; sections * vdim * vdim];
+        let mut r_loc = vec![0.0; sections * vdim];
+        for (j, &i) in self.fit_idx.iter().enumerate() {
+            let w = self.obs.wgt[base + j];
+            if w == 0.0 {
+                continue;
+            }
+            let mi = m[i];
+            let (seg, v) = locals.at(j);
+            let t = if blocks > 1 { self.terms.trials[i] } else { 0 };
+            let (z, w) = match th {
+                None => (self.obs.g2[base + j] / mi, w * mi * mi),
+                Some(th) => {
+                    let f = own.get(t).copied().unwrap_or(1.0);
+                    let zh = self.terms.z_local_factor(th, seg, v, f).1.max(1e-15);
+                    let g = (mi * zh).max(1e-15);
+                    let (f0, change) = ds.map.dom_step_g(g, self.r, 1e-4);
+                    let d = change / (zh * 1e-4);
+                    if !d.is_finite() || d == 0.0 {
+                        continue;
+                    }
+                    (zh + (self.obs.readings.dom[base + j] - f0) / d, d * d)
+                }
+            };
+            let sec = seg * blocks + t;
+            let (sa, rb) = (
+                &mut s_loc[sec * vdim * vdim..(sec + 1) * vdim * vdim],
+                &mut r_loc[sec * vdim..(sec + 1) * vdim],
+            );
+            accumulate(sa, rb, v, w, z);
+        }
+        let mut eqs = vec![(vec![0.0; pdim * pdim], vec![0.0; pdim]); blocks];
+        for seg in 0..segments {
+            let map = RowMap::new(self.terms.basis.as_ref(), seg, lay.law_start() - 1);
+            for (t, (a, b)) in eqs.iter_mut().enumerate() {
+                let sec = seg * blocks + t;
+                map.add(
+                    &s_loc[sec * vdim * vdim..(sec + 1) * vdim * vdim],
+                    &r_loc[sec * vdim..(sec + 1) * vdim],
+                    vdim,
+                    a,
+                    b,
+                );
+            }
+        }
+        eqs
+    }
+
+    /// The node's normal equations (full, symmetric) from its blocks' (see
+    /// [`NodeFit::block_equations`]), each block's scaled by the node's own factor there on
+    /// the regressors it multiplies (the hysteresis terms and the law).
+    pub(super) fn combine(
+        &self,
+        eqs: Vec<(Vec<f64>, Vec<f64>)>,
+        own: &[f64],
+    ) -> (Vec<f64>, Vec<f64>) {
+        let pdim = self.terms.lay.dim();
+        let h = self.terms.lay.hyst_index();
+        let mut it = eqs.into_iter();
+        let (mut a, mut b) = it
+            .next()
+            .unwrap_or_else(|| (vec![0.0; pdim * pdim], vec![0.0; pdim]));
+        if own.len() > 1 {
+            let d = |t: usize, u: usize| if u >= h { own[t] } else { 1.0 };
+            for u in 0..pdim {
+                b[u] *= d(0, u);
+                for w in 0..=u {
+                    a[u * pdim + w] *= d(0, u) * d(0, w);
+                }
+            }
+            for (t, (at, bt)) in it.enumerate().map(|(t, e)| (t + 1, e)) {
+                for u in 0..pdim {
+                    b[u] += d(t, u) * bt[u];
+                    for w in 0..=u {
+                        a[u * pdim + w] += d(t, u) * d(t, w) * at[u * pdim + w];
+                    }
+                }
+            }
+        }
+        for u in 0..pdim {
+            for w in u + 1..pdim {
+                a[u * pdim + w] = a[w * pdim + u];
+            }
+        }
+        (a, b)
+    }
+
     /// The per-node normal equations solved: the power law as before (least squares, and a
     /// baseline that came out negative refitted at zero); a spline with its coefficients
     /// non-negative (a monotone law), the same rule for the baseline.
-    fn solve(&self, a: &mut [f64], b: &mut [f64]) -> Vec<f64> {
+    pub(super) fn solve(&self, a: &mut [f64], b: &mut [f64]) -> Vec<f64> {
         let lay = &self.terms.lay;
         let pdim = lay.dim();
         let constrained: Vec<bool> = (0..pdim).map(|u| u >= lay.law_start()).collect();
@@ -389,55 +454,6 @@ impl NodeFit<'_> {
         let mean = g.iter().sum::<f64>() / trials.max(1) as f64;
         if mean > 0.0 {
             g.iter_mut().for_each(|v| *v /= mean);
-        }
-        g
-    }
-
-    /// Each node's sensitivity factor per trial (trial `j`, node `k` at `j n + k`) given the
-    /// nodes' parameters, in closed form as [`NodeFit::trial_gains`] but node by node, each
-    /// node's factors normalised to a mean of 1 over the trials it is loaded in (its gain
-    /// carries its scale). Read from `locals`, each node's local regressors of the fit that
-    /// gave its parameters (they carry its factor of that fit).
-    pub(super) fn node_trial_gains(
-        &self,
-        theta: &[Vec<f64>],
-        locals: &[Arc<Locals>],
-        m: &[f64],
-        trials: usize,
-    ) -> Vec<f64> {
-        let ds = self.ctx.ds;
-        let n = ds.n;
-        let mut num = vec![0.0; trials * n];
-        let mut den = vec![0.0; trials * n];
-        for (k, (th, loc)) in theta.iter().zip(locals).enumerate().take(n) {
-            let base = k * self.fit_idx.len();
-            for (jj, &i) in self.fit_idx.iter().enumerate() {
-                let mi = m[i];
-                let w = self.obs.wgt[base + jj] * mi * mi;
-                if w == 0.0 {
-                    continue;
-                }
-                let j = ds.trial[i];
-                let own = self.terms.node_sens[j * n + k];
-                // What the regressors before the law contribute, and the force term before
-                // the node's own factor (its local values carry that factor once applied).
-                let (seg, v) = loc.at(jj);
-                let (rest, z) = self.terms.z_local_factor(th, seg, v, own);
-                let q = (z - rest) / own;
-                num[j * n + k] += w * q * (self.obs.g2[base + jj] / mi - rest);
-                den[j * n + k] += w * q * q;
-            }
-        }
-        let mut g = vec![1.0; trials * n];
-        for k in 0..n {
-            let seen: Vec<usize> = (0..trials).filter(|&j| den[j * n + k] > 0.0).collect();
-            for &j in &seen {
-                g[j * n + k] = (num[j * n + k] / den[j * n + k]).clamp(0.05, 20.0);
-            }
-            let mean = seen.iter().map(|&j| g[j * n + k]).sum::<f64>() / seen.len().max(1) as f64;
-            if mean > 0.0 {
-                seen.iter().for_each(|&j| g[j * n + k] /= mean);
-            }
         }
         g
     }

@@ -8,6 +8,7 @@
 //! curvature sensitivity `s` and the curvature baseline term; then the resistance floor
 //! `G / (1 + r G)`, the row crosstalk `G (1 - Rs sum_row G)`, and the readout.
 
+mod factors;
 mod fit;
 mod loads;
 mod terms;
@@ -74,7 +75,7 @@ fn evaluate_inner(
     crate::timing::count_eval();
     let stride = stride.max(1);
     let ds = ctx.ds;
-    let (len, n) = (ds.len(), ds.n);
+    let len = ds.len();
     // The samples the per-node fit looks at.
     let fit_idx: Vec<usize> = (0..len).step_by(stride).filter(|&i| train(i)).collect();
     // The effects' states run on every sample, or, in the search on a long recording, on every
@@ -103,69 +104,23 @@ fn evaluate_inner(
         }
     }
     let mut gains = cfg.curv_trials.clone();
-    let mut theta = vec![vec![0.0; terms.lay.dim()]; n];
-    let mut locals: Vec<std::sync::Arc<Locals>> = Vec::new();
-    // A latent drift or per-trial sensitivities are fitted with the nodes, alternately.
+    // A latent drift or per-trial sensitivities are fitted with the nodes, alternately: per-node
+    // factors alone node by node (see `factors.rs`), the others across the nodes.
     let iterations = if latent.is_some() || gains.is_some() {
         3
     } else {
         1
     };
-    // The local regressors carry neither the thermal factor nor a node's own per-trial
-    // factors: built once, unless a per-trial sensitivity shared by the nodes changes them.
-    let shared_trial_gains = gains.is_some() && cfg.curv_per_node.is_none();
-    let mut groups = Vec::new();
-    for it in 0..iterations {
-        if let Some((knots, values)) = &latent {
-            apply_latent(ctx, knots, values, &mut m);
+    let fit_data = (&*obs, &fit_idx[..]);
+    let (theta, locals) = match &mut gains {
+        Some(g) if latent.is_none() && cfg.curv_per_node.is_some() => {
+            fit_node_factors(ctx, cfg, &mut terms, (fit_data, &m), g, iterations - 1)
         }
-        match (&gains, cfg.curv_per_node) {
-            (Some(g), Some(_)) => {
-                terms.node_sens.clone_from(g);
-                if terms.trials.is_empty() {
-                    terms.trials.clone_from(&ds.trial);
-                }
-            }
-            (Some(g), None) => terms.sens = ds.trial.iter().map(|&j| g[j]).collect(),
-            _ => {}
+        _ => {
+            let factors = (&mut m, &mut latent, &mut gains);
+            fit_alternately(ctx, cfg, &mut terms, fit_data, factors, iterations)
         }
-        let rebuild = it == 0 || shared_trial_gains;
-        if rebuild {
-            groups = shared_locals(&terms, n, &fit_idx);
-        }
-        let fit = NodeFit {
-            ctx,
-            terms: &terms,
-            obs: &obs,
-            fit_idx: &fit_idx,
-            r: cfg.floor(),
-            groups: groups.clone(),
-        };
-        // After the first iteration each node starts from its own last parameters. The first
-        // of several takes the linearisation at the observations only: the factor it is fitted
-        // against moves before the next, which takes a Gauss-Newton pass from there.
-        let warm = (it > 0).then_some(&theta);
-        let linear_only = it == 0 && iterations > 1;
-        let reuse = if rebuild { &[][..] } else { &locals[..] };
-        (theta, locals) = crate::parallel::map(n, |k| {
-            fit.node(k, &m, warm.map(|t| t[k].as_slice()), linear_only, reuse.get(k))
-        })
-        .into_iter()
-        .unzip();
-        if it + 1 == iterations {
-            break;
-        }
-        // Latent thermal: refit the common-mode factor on the knots.
-        if let Some((knots, values)) = &mut latent {
-            *values = fit.latent(knots, &theta);
-        }
-        if let Some(g) = &mut gains {
-            *g = match cfg.curv_per_node {
-                Some(nn) => fit.node_trial_gains(&theta, &locals, &m, g.len() / nn.max(1)),
-                None => fit.trial_gains(&theta, &m, g.len()),
-            };
-        }
-    }
+    };
     let looked: &[usize] = if want_pred { &[] } else { &fit_idx };
     let skip: Vec<bool> = if held_out_only {
         (0..len).map(train).collect()
@@ -188,6 +143,138 @@ fn evaluate_inner(
         trial_gains: gains,
         train_sse,
     }
+}
+
+/// Each node's parameters and local regressors, with a latent drift's thermal factor `m` (its
+/// knot values in `latent`) or per-trial sensitivities `gains` refitted between the node fits
+/// (`iterations` fits; all updated). The fits before the last take the linearisation at the
+/// observations only: the factors are fitted at that linearisation too, and the last fit
+/// takes the Gauss-Newton passes from there.
+#[allow(clippy::type_complexity)]
+fn fit_alternately(
+    ctx: &Context,
+    cfg: &Config,
+    terms: &mut Terms,
+    (obs, fit_idx): (&Observed, &[usize]),
+    (m, latent, gains): (
+        &mut Vec<f64>,
+        &mut Option<(Vec<f64>, Vec<f64>)>,
+        &mut Option<Vec<f64>>,
+    ),
+    iterations: usize,
+) -> (Vec<Vec<f64>>, Vec<std::sync::Arc<Locals>>) {
+    let ds = ctx.ds;
+    let n = ds.n;
+    let mut theta: Vec<Vec<f64>> = Vec::new();
+    let mut locals: Vec<std::sync::Arc<Locals>> = Vec::new();
+    // The local regressors carry neither the thermal factor nor a node's own per-trial
+    // factors: built once, unless a per-trial sensitivity shared by the nodes changes them.
+    let shared_trial_gains = gains.is_some() && cfg.curv_per_node.is_none();
+    let mut groups = Vec::new();
+    for it in 0..iterations {
+        if let Some((knots, values)) = &*latent {
+            apply_latent(ctx, knots, values, m);
+        }
+        match (&*gains, cfg.curv_per_node) {
+            (Some(g), Some(_)) => {
+                terms.node_sens.clone_from(g);
+                if terms.trials.is_empty() {
+                    terms.trials.clone_from(&ds.trial);
+                }
+            }
+            (Some(g), None) => terms.sens = ds.trial.iter().map(|&j| g[j]).collect(),
+            _ => {}
+        }
+        let rebuild = it == 0 || shared_trial_gains;
+        if rebuild {
+            groups = shared_locals(terms, n, fit_idx);
+        }
+        let fit = NodeFit {
+            ctx,
+            terms,
+            obs,
+            fit_idx,
+            r: cfg.floor(),
+            groups: groups.clone(),
+        };
+        // After the first iteration each node starts from its own last parameters.
+        let last = it + 1 == iterations;
+        let warm = (it > 0).then_some(&theta);
+        let reuse = if rebuild { &[][..] } else { &locals[..] };
+        let m: &[f64] = m;
+        (theta, locals) = crate::parallel::map(n, |k| {
+            fit.node(
+                k,
+                m,
+                warm.map(|t| t[k].as_slice()),
+                !last,
+                reuse.get(k),
+                None,
+            )
+        })
+        .into_iter()
+        .unzip();
+        if last {
+            break;
+        }
+        // Latent thermal: refit the common-mode factor on the knots.
+        if let Some((knots, values)) = latent {
+            *values = fit.latent(knots, &theta);
+        }
+        if let Some(g) = gains {
+            *g = match cfg.curv_per_node {
+                Some(nn) => fit.node_trial_gains(&theta, &locals, m, g.len() / nn.max(1)),
+                None => fit.trial_gains(&theta, m, g.len()),
+            };
+        }
+    }
+    (theta, locals)
+}
+
+/// Each node's parameters, local regressors and per-trial factors `g` (trial `j`, node `k` at
+/// `j n + k`; updated), fitted node by node: `updates` alternations (see
+/// [`NodeFit::node_with_factors`]). `terms` are left with the factors the nodes were fitted
+/// with last.
+fn fit_node_factors(
+    ctx: &Context,
+    cfg: &Config,
+    terms: &mut Terms,
+    ((obs, fit_idx), m): ((&Observed, &[usize]), &[f64]),
+    g: &mut [f64],
+    updates: usize,
+) -> (Vec<Vec<f64>>, Vec<std::sync::Arc<Locals>>) {
+    let n = ctx.ds.n;
+    terms.node_sens = g.to_vec();
+    if terms.trials.is_empty() {
+        terms.trials.clone_from(&ctx.ds.trial);
+    }
+    let trials = g.len() / n.max(1);
+    let per_node = {
+        let fit = NodeFit {
+            ctx,
+            terms,
+            obs,
+            fit_idx,
+            r: cfg.floor(),
+            groups: shared_locals(terms, n, fit_idx),
+        };
+        let g: &[f64] = g;
+        crate::parallel::map(n, |k| {
+            let own = (0..trials).map(|t| g[t * n + k]).collect();
+            fit.node_with_factors(k, m, own, updates)
+        })
+    };
+    let mut theta = Vec::with_capacity(n);
+    let mut locals = Vec::with_capacity(n);
+    for (k, (th, loc, own)) in per_node.into_iter().enumerate() {
+        theta.push(th);
+        locals.push(loc);
+        for (t, f) in own.into_iter().enumerate() {
+            g[t * n + k] = f;
+        }
+    }
+    terms.node_sens = g.to_vec();
+    (theta, locals)
 }
 
 /// The local regressors of each group of nodes that share them (see [`Terms::group`]): one set

@@ -146,21 +146,6 @@ impl Terms {
         self.node_sens.get(t * self.n + k).copied().unwrap_or(1.0)
     }
 
-    /// The normal equations of one block (lower triangle `s`, right side `r`, summed over
-    /// local values without the node's own factor) scaled to local values with factor `f`:
-    /// it multiplies the regressors from the hysteresis terms on (see [`Terms::local`]).
-    pub(super) fn scale_block(&self, s: &mut [f64], r: &mut [f64], f: f64) {
-        let vdim = self.vdim();
-        let h = self.lay.hyst_index();
-        let d = |u: usize| if u >= h { f } else { 1.0 };
-        for u in 0..vdim {
-            r[u] *= d(u);
-            for w in 0..=u {
-                s[u * vdim + w] *= d(u) * d(w);
-            }
-        }
-    }
-
     /// The number of local values (see [`Terms::local`]).
     pub(super) fn vdim(&self) -> usize {
         self.lay.law_start() + if self.basis.is_some() { 3 } else { 1 }
