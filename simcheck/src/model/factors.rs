@@ -94,7 +94,7 @@ impl NodeFit<'_> {
         let n = ds.n;
         // Node by node (each node's factors read its own fit only).
         let per_node = crate::parallel::map(n.min(theta.len()), |k| {
-            let (th, loc) = (&theta[k], &locals[k]);
+            let (co, loc) = (self.terms.coefs(&theta[k]), &locals[k]);
             let mut num = vec![0.0f64; trials];
             let mut den = vec![0.0f64; trials];
             let base = k * self.fit_idx.len();
@@ -109,7 +109,7 @@ impl NodeFit<'_> {
                 // What the regressors before the law contribute, and the force term before
                 // the node's own factor (its local values carry that factor once applied).
                 let (seg, v) = loc.at(jj);
-                let (rest, z) = self.terms.z_local_factor(th, seg, v, own);
+                let (rest, z) = self.terms.z_local_factor(&co, seg, v, own);
                 let q = (z - rest) / own;
                 num[j] += w * q * (self.obs.g2[base + jj] / mi - rest);
                 den[j] += w * q * q;

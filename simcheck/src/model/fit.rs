@@ -302,6 +302,7 @@ impl NodeFit<'_> {
         let base = k * self.fit_idx.len();
         let mut s_loc = vec![0.0; sections * vdim * vdim];
         let mut r_loc = vec![0.0; sections * vdim];
+        let co = th.map(|th| self.terms.coefs(th));
         for (j, &i) in self.fit_idx.iter().enumerate() {
             let w = self.obs.wgt[base + j];
             if w == 0.0 {
@@ -310,11 +311,11 @@ impl NodeFit<'_> {
             let mi = m[i];
             let (seg, v) = locals.at(j);
             let t = if blocks > 1 { self.terms.trials[i] } else { 0 };
-            let (z, w) = match th {
+            let (z, w) = match &co {
                 None => (self.obs.g2[base + j] / mi, w * mi * mi),
-                Some(th) => {
+                Some(co) => {
                     let f = own.get(t).copied().unwrap_or(1.0);
-                    let zh = self.terms.z_local_factor(th, seg, v, f).1.max(1e-15);
+                    let zh = self.terms.z_local_factor(co, seg, v, f).1.max(1e-15);
                     let g = (mi * zh).max(1e-15);
                     let (f0, change) = ds.map.dom_step_g(g, self.r, 1e-4);
                     let d = change / (zh * 1e-4);

@@ -133,6 +133,11 @@ fn evaluate_inner(
         theta: &theta,
         m: &m,
         locals: &locals,
+        coefs: if want_pred {
+            Vec::new()
+        } else {
+            theta.iter().map(|th| terms.coefs(th)).collect()
+        },
     };
     let (pred, train_sse) = predict(ctx, cfg, &at, looked, want_pred, &skip);
     Eval {
@@ -351,6 +356,8 @@ struct Evaluated<'a> {
     theta: &'a [Vec<f64>],
     m: &'a [f64],
     locals: &'a [std::sync::Arc<Locals>],
+    /// Each node's parameters as [`terms::Coefs`] (for the local regressors).
+    coefs: Vec<terms::Coefs<'a>>,
 }
 
 impl Evaluated<'_> {
@@ -361,7 +368,7 @@ impl Evaluated<'_> {
             Some(l) if fitted => {
                 let (seg, v) = l.at(j);
                 let f = self.terms.factor_at(k, i).1;
-                self.terms.z_local_factor(&self.theta[k], seg, v, f).1
+                self.terms.z_local_factor(&self.coefs[k], seg, v, f).1
             }
             _ => self.terms.z(&self.theta[k], k, i, j),
         }

@@ -186,13 +186,30 @@ impl Terms {
         }
     }
 
-    /// [`Terms::z_local_parts`] (the part before the law, and the whole) with the node's own factor `f` applied to the regressors it
-    /// scales (local values `v` come without it; see [`Terms::local`]).
+    /// A node's parameters `th` with its spline law's sums over the hats below each knot
+    /// segment (see [`Coefs`]).
+    pub(super) fn coefs<'a>(&self, th: &'a [f64]) -> Coefs<'a> {
+        let below = match &self.basis {
+            None => Vec::new(),
+            Some(b) => {
+                let c = &th[self.lay.law_start()..];
+                (0..b.dim())
+                    .map(|s| c[..s].iter().zip(b.full()).map(|(c, f)| c * f).sum())
+                    .collect()
+            }
+        };
+        Coefs { th, below }
+    }
+
+    /// [`Terms::z_local_parts`] (the part before the law, and the whole) with the node's own
+    /// factor `f` applied to the regressors it scales (local values `v` come without it; see
+    /// [`Terms::local`]).
     #[inline(always)]
-    pub(super) fn z_local_factor(&self, th: &[f64], s: usize, v: &[f64], f: f64) -> (f64, f64) {
+    pub(super) fn z_local_factor(&self, co: &Coefs, s: usize, v: &[f64], f: f64) -> (f64, f64) {
         if self.node_sens.is_empty() {
-            return self.z_local_parts(th, s, v);
+            return self.z_local_parts(co, s, v);
         }
+        let th = co.th;
         let (h, o) = (self.lay.hyst_index(), self.lay.law_start());
         let fixed: f64 = th[..h].iter().zip(&v[..h]).map(|(t, x)| t * x).sum();
         let hyst: f64 = th[h..o].iter().zip(&v[h..o]).map(|(t, x)| t * x).sum();
@@ -200,8 +217,8 @@ impl Terms {
         let c = &th[o..];
         let law = match &self.basis {
             None => c[0] * v[o],
-            Some(b) => {
-                let below: f64 = c[..s].iter().zip(b.full()).map(|(c, f)| c * f).sum();
+            Some(_) => {
+                let below = co.below[s];
                 v[o] * below + c[s] * v[o + 1] + c.get(s + 1).map_or(0.0, |cn| cn * v[o + 2])
             }
         };
@@ -211,14 +228,15 @@ impl Terms {
     /// The prediction `theta . x` from local values `v` in segment `s` (the whole), and what
     /// the regressors before the law contribute to it.
     #[inline(always)]
-    pub(super) fn z_local_parts(&self, th: &[f64], s: usize, v: &[f64]) -> (f64, f64) {
+    pub(super) fn z_local_parts(&self, co: &Coefs, s: usize, v: &[f64]) -> (f64, f64) {
+        let th = co.th;
         let o = self.lay.law_start();
         let z: f64 = th[..o].iter().zip(&v[..o]).map(|(t, x)| t * x).sum();
         let whole = match &self.basis {
             None => z + th[o] * v[o],
-            Some(b) => {
+            Some(_) => {
                 let c = &th[o..];
-                let below: f64 = c[..s].iter().zip(b.full()).map(|(c, f)| c * f).sum();
+                let below = co.below[s];
                 z + v[o] * below + c[s] * v[o + 1] + c.get(s + 1).map_or(0.0, |cn| cn * v[o + 2])
             }
         };
@@ -382,4 +400,12 @@ mod tests {
         assert_eq!(r[1], [0.0, 0.5, 0.5, 1.0, 1.0, 1.0, 1.0]);
         assert_eq!(r[2], [0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0]);
     }
+}
+
+/// A node's parameters with its spline law's sum over the full hats below each knot segment
+/// (`below[s] = sum_(j < s) c_j Phi_j`, summed in the same order as per sample before): summed
+/// once per parameters, not at every sample.
+pub(super) struct Coefs<'a> {
+    pub(super) th: &'a [f64],
+    below: Vec<f64>,
 }
