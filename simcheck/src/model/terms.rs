@@ -385,6 +385,14 @@ pub(super) fn remnant_ramps(force: &[f64]) -> Vec<Vec<f64>> {
     crate::set::ramps(force, &levels)
 }
 
+/// A node's parameters with its spline law's sum over the full hats below each knot segment
+/// (`below[s] = sum_(j < s) c_j Phi_j`, summed in the same order as per sample before): summed
+/// once per parameters, not at every sample.
+pub(super) struct Coefs<'a> {
+    pub(super) th: &'a [f64],
+    below: Vec<f64>,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -400,12 +408,4 @@ mod tests {
         assert_eq!(r[1], [0.0, 0.5, 0.5, 1.0, 1.0, 1.0, 1.0]);
         assert_eq!(r[2], [0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0]);
     }
-}
-
-/// A node's parameters with its spline law's sum over the full hats below each knot segment
-/// (`below[s] = sum_(j < s) c_j Phi_j`, summed in the same order as per sample before): summed
-/// once per parameters, not at every sample.
-pub(super) struct Coefs<'a> {
-    pub(super) th: &'a [f64],
-    below: Vec<f64>,
 }
