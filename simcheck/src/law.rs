@@ -123,6 +123,13 @@ impl Basis {
         below + c[s] * a + c.get(s + 1).map_or(0.0, |cn| cn * b)
     }
 
+    /// [`Basis::value`] with the sums `below[s]` over the full hats below each segment `s`
+    /// summed already (see the model's `Coefs`).
+    pub fn value_with(&self, c: &[f64], below: &[f64], l: f64) -> f64 {
+        let (s, a, b) = self.local(l);
+        below[s] + c[s] * a + c.get(s + 1).map_or(0.0, |cn| cn * b)
+    }
+
     /// The full row of basis values at load `l`.
     pub fn row(&self, l: f64, out: &mut [f64]) {
         let (s, a, b) = self.local(l);

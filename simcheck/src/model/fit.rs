@@ -426,17 +426,18 @@ impl NodeFit<'_> {
         let n = ds.n;
         let mut num = vec![0.0; trials];
         let mut den = vec![0.0; trials];
+        let coefs: Vec<_> = theta.iter().map(|th| self.terms.coefs(th)).collect();
         for (jj, &i) in self.fit_idx.iter().enumerate() {
             let j = ds.trial[i];
             let mi = m[i];
-            for (k, th) in theta.iter().enumerate().take(n) {
+            for (k, (th, co)) in theta.iter().zip(&coefs).enumerate().take(n) {
                 let idx = k * self.fit_idx.len() + jj;
                 let w = self.obs.wgt[idx] * mi * mi;
                 if w == 0.0 {
                     continue;
                 }
                 let q = self.terms.law(th, k, i, jj);
-                let rest = self.terms.z(th, k, i, jj) - self.terms.s(k, i) * q;
+                let rest = self.terms.z_coefs(co, k, i, jj) - self.terms.s(k, i) * q;
                 num[j] += w * q * (self.obs.g2[idx] / mi - rest);
                 den[j] += w * q * q;
             }
@@ -467,15 +468,16 @@ impl NodeFit<'_> {
         let kk = knots.len();
         let mut a = vec![0.0; kk * kk];
         let mut b = vec![0.0; kk];
+        let coefs: Vec<_> = theta.iter().map(|th| self.terms.coefs(th)).collect();
         for (jj, &i) in self.fit_idx.iter().enumerate() {
             let (j, w) = hat(knots, ds.t[i]);
-            for (k, th) in theta.iter().enumerate().take(n) {
+            for (k, co) in coefs.iter().enumerate().take(n) {
                 let idx = k * self.fit_idx.len() + jj;
                 let wt = self.obs.wgt[idx];
                 if wt == 0.0 {
                     continue;
                 }
-                let q = self.terms.z(th, k, i, jj);
+                let q = self.terms.z_coefs(co, k, i, jj);
                 let phi = [(j, (1.0 - w) * q), (j + 1, w * q)];
                 for &(u, xu) in &phi {
                     if u >= kk {

@@ -130,14 +130,9 @@ fn evaluate_inner(
     let at = Evaluated {
         obs: &obs,
         terms: &terms,
-        theta: &theta,
         m: &m,
         locals: &locals,
-        coefs: if want_pred {
-            Vec::new()
-        } else {
-            theta.iter().map(|th| terms.coefs(th)).collect()
-        },
+        coefs: theta.iter().map(|th| terms.coefs(th)).collect(),
     };
     let (pred, train_sse) = predict(ctx, cfg, &at, looked, want_pred, &skip);
     Eval {
@@ -353,10 +348,9 @@ fn apply_latent(ctx: &Context, knots: &[f64], values: &[f64], m: &mut [f64]) {
 struct Evaluated<'a> {
     obs: &'a Observed,
     terms: &'a Terms,
-    theta: &'a [Vec<f64>],
     m: &'a [f64],
     locals: &'a [std::sync::Arc<Locals>],
-    /// Each node's parameters as [`terms::Coefs`] (for the local regressors).
+    /// Each node's parameters as [`terms::Coefs`].
     coefs: Vec<terms::Coefs<'a>>,
 }
 
@@ -370,7 +364,7 @@ impl Evaluated<'_> {
                 let f = self.terms.factor_at(k, i).1;
                 self.terms.z_local_factor(&self.coefs[k], seg, v, f).1
             }
-            _ => self.terms.z(&self.theta[k], k, i, j),
+            _ => self.terms.z_coefs(&self.coefs[k], k, i, j),
         }
     }
 }

@@ -254,8 +254,9 @@ impl Terms {
     }
 
     /// Node `k`'s conductance before the thermal factor at sample `i` (the `j`-th the fit looks
-    /// at), with parameters `th`.
-    pub(super) fn z(&self, th: &[f64], k: usize, i: usize, j: usize) -> f64 {
+    /// at), with parameters `co` (see [`Coefs`]).
+    pub(super) fn z_coefs(&self, co: &Coefs, k: usize, i: usize, j: usize) -> f64 {
+        let th = co.th;
         let sk = self.s(k, i);
         let cx = if self.lay.curv_k { self.curv_x[i] } else { 0.0 };
         let l = self.loads.at(k, i, j);
@@ -271,7 +272,7 @@ impl Terms {
         }
         match &self.basis {
             None => z + th[self.lay.law_start()] * (sk * l),
-            Some(b) => z + sk * b.value(&th[self.lay.law_start()..], l),
+            Some(b) => z + sk * b.value_with(&th[self.lay.law_start()..], &co.below, l),
         }
     }
 }
