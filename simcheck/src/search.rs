@@ -4,7 +4,7 @@
 use crate::context::Context;
 use crate::effects::{Config, Thermal};
 use crate::law::Law;
-use crate::model::{evaluate, evaluate_with};
+use crate::model::evaluate_with;
 
 /// A global parameter the search moves, in an unconstrained coordinate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -272,11 +272,14 @@ pub fn fit(
     if matches!(&c.thermal, Some(Thermal::Latent { .. })) || c.curv_trials.is_some() {
         // A latent drift alone is re-read from a fit on the held-out evaluation's samples,
         // without predictions: every later evaluation refits the knots from these values.
-        let ev = if c.curv_trials.is_none() {
-            evaluate_with(ctx, &c, train, ctx.held_out_stride(), false)
+        // Per-trial sensitivities from a fit on every training sample, also without
+        // predictions (only what the fit left is read).
+        let stride = if c.curv_trials.is_none() {
+            ctx.held_out_stride()
         } else {
-            evaluate(ctx, &c, train)
+            1
         };
+        let ev = evaluate_with(ctx, &c, train, stride, false);
         if let (Some(Thermal::Latent { values, .. }), Some(v)) = (&mut c.thermal, ev.latent) {
             *values = v;
         }

@@ -4,7 +4,7 @@
 use crate::context::Context;
 use crate::effects::Config;
 use crate::law::Law;
-use crate::model::evaluate;
+use crate::model::evaluate_with;
 use crate::search::{base_params, fit_all, Param};
 
 /// The final model with the simulator's power law, for SIM.toml: the model itself when its law
@@ -48,6 +48,7 @@ pub fn power_summary(
         power
     };
     let fitted = fit_all(ctx, std::slice::from_ref(&start), &params, ev_n);
-    let theta = evaluate(ctx, &fitted, &|_| true).theta;
+    // The parameters only: no predictions.
+    let theta = evaluate_with(ctx, &fitted, &|_| true, 1, false).theta;
     (fitted, theta)
 }
