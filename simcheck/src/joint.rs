@@ -71,7 +71,7 @@ fn pairs(tested: &BTreeMap<EffectKind, (Cv, Verdict)>) -> Vec<[EffectKind; 2]> {
         EffectKind::CurvatureSensitivity,
     );
     if refused_with_gain(&cb) && refused_with_gain(&cs) {
-        out.push(if cb < cs { [cb, cs] } else { [cs, cb] });
+        out.push([cb, cs]);
     }
     let mut strong: Vec<EffectKind> = DYNAMIC
         .into_iter()

@@ -207,7 +207,26 @@ pub(super) struct NodeFit<'a> {
     pub(super) groups: Vec<Arc<Locals>>,
 }
 
-impl NodeFit<'_> {
+impl<'a> NodeFit<'a> {
+    /// The fit of one evaluation's nodes on the samples `fit_idx` (observed as `obs`), with
+    /// `cfg`'s resistance floor and the groups' shared local regressors.
+    pub(super) fn new(
+        ctx: &'a Context<'a>,
+        cfg: &Config,
+        terms: &'a Terms,
+        (obs, fit_idx): (&'a Observed, &'a [usize]),
+        groups: Vec<Arc<Locals>>,
+    ) -> NodeFit<'a> {
+        NodeFit {
+            ctx,
+            terms,
+            obs,
+            fit_idx,
+            r: cfg.floor(),
+            groups,
+        }
+    }
+
     /// Node `k`'s linear parameters given the thermal factor `m`. For readouts that are not
     /// linear in conductance (resistance, divider) a few Gauss-Newton passes linearise the
     /// residual domain around the current prediction instead of the observation (whose 1/G^2

@@ -176,12 +176,7 @@ fn fit_alternately(
             apply_latent(ctx, knots, values, m);
         }
         match (&*gains, cfg.curv_per_node) {
-            (Some(g), Some(_)) => {
-                terms.node_sens.clone_from(g);
-                if terms.trials.is_empty() {
-                    terms.trials.clone_from(&ds.trial);
-                }
-            }
+            (Some(g), Some(_)) => terms.set_node_factors(g, &ds.trial),
             (Some(g), None) => terms.sens = ds.trial.iter().map(|&j| g[j]).collect(),
             _ => {}
         }
@@ -189,14 +184,7 @@ fn fit_alternately(
         if rebuild {
             groups = shared_locals(terms, n, fit_idx);
         }
-        let fit = NodeFit {
-            ctx,
-            terms,
-            obs,
-            fit_idx,
-            r: cfg.floor(),
-            groups: groups.clone(),
-        };
+        let fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups.clone());
         // After the first iteration each node starts from its own last parameters.
         let last = it + 1 == iterations;
         let warm = (it > 0).then_some(&theta);
@@ -244,20 +232,11 @@ fn fit_node_factors(
     updates: usize,
 ) -> (Vec<Vec<f64>>, Vec<std::sync::Arc<Locals>>) {
     let n = ctx.ds.n;
-    terms.node_sens = g.to_vec();
-    if terms.trials.is_empty() {
-        terms.trials.clone_from(&ctx.ds.trial);
-    }
+    terms.set_node_factors(g, &ctx.ds.trial);
     let trials = g.len() / n.max(1);
     let per_node = {
-        let fit = NodeFit {
-            ctx,
-            terms,
-            obs,
-            fit_idx,
-            r: cfg.floor(),
-            groups: shared_locals(terms, n, fit_idx),
-        };
+        let groups = shared_locals(terms, n, fit_idx);
+        let fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups);
         let g: &[f64] = g;
         crate::parallel::map(n, |k| {
             let own = (0..trials).map(|t| g[t * n + k]).collect();
@@ -273,7 +252,7 @@ fn fit_node_factors(
             g[t * n + k] = f;
         }
     }
-    terms.node_sens = g.to_vec();
+    terms.set_node_factors(g, &ctx.ds.trial);
     (theta, locals)
 }
 

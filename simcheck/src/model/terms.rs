@@ -112,6 +112,16 @@ impl Terms {
         }
     }
 
+    /// Sets the per-node factors per trial (trial `j`, node `k` at `j n + k`), with each
+    /// sample's trial (`trial`, kept from the first call).
+    pub(super) fn set_node_factors(&mut self, g: &[f64], trial: &[usize]) {
+        self.node_sens.clear();
+        self.node_sens.extend_from_slice(g);
+        if self.trials.is_empty() {
+            self.trials.extend_from_slice(trial);
+        }
+    }
+
     /// Node `k`'s own per-trial factor at sample `i` (1 without per-node factors).
     pub(super) fn node_factor(&self, k: usize, i: usize) -> f64 {
         if self.node_sens.is_empty() {
