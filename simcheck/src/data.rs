@@ -140,7 +140,8 @@ impl ReadoutMap {
     }
 
     /// The residual domain at reading `y0` and its change from there to a nearby `y1`. For a
-    /// resistance the change is `ln(1 + x)`, `x = (y1 - y0) / y0` (see [`ln_1p_near_zero`]).
+    /// resistance the change is `ln(1 + x)`, `x = (y1 - y0) / y0`, from its series when `x` is
+    /// small.
     #[inline]
     pub fn dom_step(&self, y0: f64, y1: f64) -> (f64, f64) {
         match self {

@@ -108,7 +108,7 @@ impl Terms {
         if self.node_sens.is_empty() {
             self.sens[i]
         } else {
-            self.sens[i] * self.node_factor(k, i)
+            self.sens[i] * self.factor_at(k, i).1
         }
     }
 
@@ -122,15 +122,6 @@ impl Terms {
         }
     }
 
-    /// Node `k`'s own per-trial factor at sample `i` (1 without per-node factors).
-    pub(super) fn node_factor(&self, k: usize, i: usize) -> f64 {
-        if self.node_sens.is_empty() {
-            1.0
-        } else {
-            self.node_sens[self.trials[i] * self.n + k]
-        }
-    }
-
     /// How many blocks a node's normal equations are summed in before its own per-trial
     /// factors scale them: one per trial with per-node factors, else one.
     pub(super) fn factor_blocks(&self) -> usize {
@@ -141,7 +132,8 @@ impl Terms {
         }
     }
 
-    /// Sample `i`'s block (see [`Terms::factor_blocks`]) and node `k`'s own factor there.
+    /// Sample `i`'s block (see [`Terms::factor_blocks`]) and node `k`'s own per-trial factor
+    /// there (block 0 and 1 without per-node factors).
     pub(super) fn factor_at(&self, k: usize, i: usize) -> (usize, f64) {
         if self.node_sens.is_empty() {
             (0, 1.0)
@@ -165,7 +157,7 @@ impl Terms {
     /// `v`, [`Terms::vdim`] long: 1, the curvature-baseline and hysteresis regressors, and the
     /// law's value (power) or the sensitivity and the two values that vary within the load's
     /// knot segment (spline), see [`crate::law::RowMap`]); returns the segment. Without the
-    /// node's own per-trial factor (see [`Terms::with_node_factor`]): nodes that read the same
+    /// node's own per-trial factor (see [`Terms::factor_at`]): nodes that read the same
     /// load share them, and they stay as the factors are refitted.
     pub(super) fn local(&self, k: usize, i: usize, j: usize, v: &mut [f64]) -> usize {
         v[0] = 1.0;
@@ -213,7 +205,8 @@ impl Terms {
 
     /// [`Terms::z_local_parts`] (the part before the law, and the whole) with the node's own
     /// factor `f` applied to the regressors it scales (local values `v` come without it; see
-    /// [`Terms::local`]).
+    /// [`Terms::local`]). Without per-node factors it is `z_local_parts` itself, whose sum runs
+    /// over the regressors in one order (kept: the numbers of every other model, bit for bit).
     #[inline(always)]
     pub(super) fn z_local_factor(&self, co: &Coefs, s: usize, v: &[f64], f: f64) -> (f64, f64) {
         if self.node_sens.is_empty() {
