@@ -99,6 +99,9 @@ impl Selection<'_> {
         let mut out = Vec::new();
         for [a, b] in pairs(tested) {
             if let Some((cv, v)) = self.joint(round, [a, b], tested) {
+                if v.accepted {
+                    self.raise_round_best(&[a, b], &v);
+                }
                 out.push(([a, b], cv, v));
             }
         }

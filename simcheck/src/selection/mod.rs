@@ -71,6 +71,10 @@ pub(crate) struct Selection<'a> {
     /// Whether a sensitivity loss's per-trial forms were held out in place of the baseline
     /// shift's form (see `reform`); once only.
     pub(crate) reformed: bool,
+    /// The held-out gain of the best candidate accepted so far in this round (a scan skew
+    /// aside: it must still beat its placebo); a candidate whose screen shows it cannot reach
+    /// it stops there (see [`crate::screen::outbid`]).
+    pub(crate) round_best: Option<f64>,
     pub(crate) progress: &'a (dyn Fn(Progress) + Sync),
 }
 
@@ -124,6 +128,7 @@ impl<'a> Selection<'a> {
             noise,
             spline_m: SPLINE_SIZES[0],
             reformed: false,
+            round_best: None,
             progress,
         }
     }
@@ -308,6 +313,7 @@ impl Selection<'_> {
         self.reform_sensitivity(round);
         drop(sp);
         let mut accepted: Vec<Best> = Vec::new();
+        self.round_best = None;
         // Saturation and crosstalk belong to the static law: decided in round 0.
         let todo: Vec<EffectKind> = EffectKind::ALL
             .into_iter()
@@ -347,6 +353,7 @@ impl Selection<'_> {
             });
             self.trials.extend(against);
             if v.accepted {
+                self.raise_round_best(&[e], &v);
                 accepted.push((vec![e], cv.clone(), v));
             }
             tested.insert(e, (cv, v));
@@ -358,6 +365,7 @@ impl Selection<'_> {
             }
         }
         drop(sp);
+        self.round_best = None;
         let Some((effects, cv, _)) = self.best_standing(round, accepted) else {
             return false;
         };
@@ -372,6 +380,16 @@ impl Selection<'_> {
             _ => None,
         };
         true
+    }
+
+    /// A candidate of this round (`effects`) was accepted with verdict `v`: the bar the
+    /// round's later candidates must be able to reach rises to its gain (a scan skew's does
+    /// not count: it must still beat its placebo, and may not join).
+    pub(crate) fn raise_round_best(&mut self, effects: &[EffectKind], v: &Verdict) {
+        if effects == [EffectKind::ScanSkew] {
+            return;
+        }
+        self.round_best = Some(self.round_best.map_or(v.rel_gain, |b| b.max(v.rel_gain)));
     }
 
     /// The accepted candidate joins: all parameters are refitted on the whole recording, from

@@ -160,12 +160,20 @@ impl Selection<'_> {
     }
 
     /// A variant held out against the current model: first in the screening view (see
-    /// [`crate::screen`]), then, when the screen leaves it worth one, the full test, whose
+    /// [`crate::screen`]), then, when the screen leaves it worth one and able to reach the
+    /// round's best accepted candidate so far ([`crate::screen::outbid`]), the full test, whose
     /// verdict alone can accept. True when the verdict is the screen's.
     pub(crate) fn held_out(&self, starts: &[Config], params: &[Param], k: ParamCount) -> Tested {
         let cv = cross_validate(self.screen, starts, params, self.ev_n);
-        let v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
+        let mut v = compare(self.ctx, &self.cur_cv, &cv, k, &self.noise);
         if !crate::screen::worth_full_test(&v) {
+            return (cv, v, true);
+        }
+        if self
+            .round_best
+            .is_some_and(|best| crate::screen::outbid(&v, best))
+        {
+            v.accepted = false;
             return (cv, v, true);
         }
         // Each fold's search starts where the screen's ended on the same training half.
