@@ -205,6 +205,9 @@ pub(super) struct NodeFit<'a> {
     /// one group when [`Terms::node_independent`]): computed once per group, not once per
     /// node. Empty: each node computes its own.
     pub(super) groups: Vec<Arc<Locals>>,
+    /// Whether the thermal factor the fits are given is 1 at every sample (no drift): the
+    /// linearisation at the observations then skips dividing by it (exactly the same sums).
+    pub(super) unit_m: bool,
 }
 
 impl<'a> NodeFit<'a> {
@@ -224,6 +227,7 @@ impl<'a> NodeFit<'a> {
             fit_idx,
             r: cfg.floor(),
             groups,
+            unit_m: false,
         }
     }
 
@@ -331,6 +335,7 @@ impl<'a> NodeFit<'a> {
             let (seg, v) = locals.at(j);
             let t = if blocks > 1 { self.terms.trials[i] } else { 0 };
             let (z, w) = match &co {
+                None if self.unit_m => (self.obs.g2[base + j], w),
                 None => (self.obs.g2[base + j] / mi, w * mi * mi),
                 Some(co) => {
                     let f = own.get(t).copied().unwrap_or(1.0);

@@ -184,7 +184,8 @@ fn fit_alternately(
         if rebuild {
             groups = shared_locals(terms, n, fit_idx);
         }
-        let fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups.clone());
+        let mut fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups.clone());
+        fit.unit_m = m.iter().all(|&x| x == 1.0);
         // After the first iteration each node starts from its own last parameters.
         let last = it + 1 == iterations;
         let warm = (it > 0).then_some(&theta);
@@ -236,7 +237,8 @@ fn fit_node_factors(
     let trials = g.len() / n.max(1);
     let per_node = {
         let groups = shared_locals(terms, n, fit_idx);
-        let fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups);
+        let mut fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups);
+        fit.unit_m = m.iter().all(|&x| x == 1.0);
         let g: &[f64] = g;
         crate::parallel::map(n, |k| {
             let own = (0..trials).map(|t| g[t * n + k]).collect();
