@@ -187,6 +187,18 @@ fn evidence(s: &mut String, f: &Findings) {
     }
 }
 
+/// A candidate's "accepted" cell: yes, no, or where a screen stopped it.
+fn accepted_label(v: &crate::cv::Verdict, screened: bool) -> &'static str {
+    match (v.accepted, screened) {
+        (true, _) => "yes",
+        (false, false) => "no",
+        // A screen that removed this much was stopped because a candidate of its round had
+        // been accepted with a far larger gain (`screen::outbid`).
+        (false, true) if v.rel_gain >= crate::screen::MIN_GAIN => "no (screen: outbid)",
+        (false, true) => "no (screen)",
+    }
+}
+
 /// Every candidate tested, what could not be tested, and the acceptance rule.
 fn candidates(s: &mut String, d: &Diagnosis) {
     let _ = writeln!(s, "\n### Every candidate tested\n\n| round | effect | held-out RMSE before -> after | SSE gain | block t | signed-rank z | blocks better | information gain | accepted | time (s) |\n|---|---|---|---|---|---|---|---|---|---|");
@@ -204,11 +216,7 @@ fn candidates(s: &mut String, d: &Diagnosis) {
             v.rank_z,
             100.0 * v.blocks_improved,
             v.ic_gain,
-            match (v.accepted, t.screened) {
-                (true, _) => "yes",
-                (false, false) => "no",
-                (false, true) => "no (screen)",
-            },
+            accepted_label(v, t.screened),
             t.seconds,
         );
     }
@@ -234,4 +242,22 @@ fn candidates(s: &mut String, d: &Diagnosis) {
         let _ = writeln!(s, "\n- {e} not testable here: {why}");
     }
     let _ = writeln!(s, "\nAn effect is accepted when its held-out SSE gain is at least {:.0} %, its block t statistic (or the Wilcoxon signed-rank test over blocks, as a z score) at least {:.0}, and n_eff ln(SSE0/SSE1) exceeds k ln(n_eff) for its k extra parameters (n_eff = time samples / integrated autocorrelation time of the richer model's held-out residual).\n", 100.0 * crate::cv::MIN_REL_GAIN, crate::cv::MIN_BLOCK_T);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_screen_stopped_for_a_gain_says_it_was_outbid() {
+        let v = |gain: f64, accepted: bool| crate::cv::Verdict {
+            rel_gain: gain,
+            accepted,
+            ..crate::cv::Verdict::default()
+        };
+        assert_eq!(accepted_label(&v(0.3, true), false), "yes");
+        assert_eq!(accepted_label(&v(0.3, false), false), "no");
+        assert_eq!(accepted_label(&v(0.001, false), true), "no (screen)");
+        assert_eq!(accepted_label(&v(0.14, false), true), "no (screen: outbid)");
+    }
 }
