@@ -17,12 +17,11 @@ impl NodeFit<'_> {
     pub(super) fn node_with_factors(
         &self,
         k: usize,
-        m: &[f64],
         mut own: Vec<f64>,
         updates: usize,
     ) -> (Vec<f64>, Arc<Locals>, Vec<f64>) {
         let locals = self.locals(k, None);
-        let eqs = self.block_equations(k, m, &locals, None, &own);
+        let eqs = self.block_equations(k, &locals, None, &own);
         let solve = |own: &[f64]| {
             let (mut a, mut b) = self.combine(eqs.clone(), own);
             self.solve(&mut a, &mut b)
@@ -37,9 +36,7 @@ impl NodeFit<'_> {
         if matches!(self.ctx.ds.map, ReadoutMap::Amplifier { .. }) {
             th = solve(&own);
         } else {
-            th = self
-                .node(k, m, Some(&th), false, Some(&locals), Some(&own))
-                .0;
+            th = self.node(k, Some(&th), false, Some(&locals), Some(&own)).0;
         }
         (th, locals, own)
     }
@@ -87,7 +84,6 @@ impl NodeFit<'_> {
         &self,
         theta: &[Vec<f64>],
         locals: &[Arc<Locals>],
-        m: &[f64],
         trials: usize,
     ) -> Vec<f64> {
         let ds = self.ctx.ds;
@@ -99,7 +95,7 @@ impl NodeFit<'_> {
             let mut den = vec![0.0f64; trials];
             let base = k * self.fit_idx.len();
             for (jj, &i) in self.fit_idx.iter().enumerate() {
-                let mi = m[i];
+                let mi = self.m[i];
                 let w = self.obs.wgt[base + jj] * mi * mi;
                 if w == 0.0 {
                     continue;

@@ -205,20 +205,24 @@ pub(super) struct NodeFit<'a> {
     /// one group when [`Terms::node_independent`]): computed once per group, not once per
     /// node. Empty: each node computes its own.
     pub(super) groups: Vec<Arc<Locals>>,
-    /// Whether the thermal factor the fits are given is 1 at every sample (no drift): the
-    /// linearisation at the observations then skips dividing by it (exactly the same sums).
-    pub(super) unit_m: bool,
+    /// The thermal factor at every sample (1 without a drift).
+    pub(super) m: &'a [f64],
+    /// Whether `m` is 1 at every sample: the linearisation at the observations then skips
+    /// dividing by it (exactly the same sums).
+    unit_m: bool,
 }
 
 impl<'a> NodeFit<'a> {
     /// The fit of one evaluation's nodes on the samples `fit_idx` (observed as `obs`), with
-    /// `cfg`'s resistance floor and the groups' shared local regressors.
+    /// `cfg`'s resistance floor, the groups' shared local regressors and the thermal factor
+    /// `m`.
     pub(super) fn new(
         ctx: &'a Context<'a>,
         cfg: &Config,
         terms: &'a Terms,
         (obs, fit_idx): (&'a Observed, &'a [usize]),
         groups: Vec<Arc<Locals>>,
+        m: &'a [f64],
     ) -> NodeFit<'a> {
         NodeFit {
             ctx,
@@ -227,11 +231,12 @@ impl<'a> NodeFit<'a> {
             fit_idx,
             r: cfg.floor(),
             groups,
-            unit_m: false,
+            m,
+            unit_m: m.iter().all(|&x| x == 1.0),
         }
     }
 
-    /// Node `k`'s linear parameters given the thermal factor `m`. For readouts that are not
+    /// Node `k`'s linear parameters given the thermal factor. For readouts that are not
     /// linear in conductance (resistance, divider) a few Gauss-Newton passes linearise the
     /// residual domain around the current prediction instead of the observation (whose 1/G^2
     /// weights would favour the highest-resistance samples); the last is left out when the one
@@ -247,7 +252,6 @@ impl<'a> NodeFit<'a> {
     pub(super) fn node(
         &self,
         k: usize,
-        m: &[f64],
         warm: Option<&[f64]>,
         linear_only: bool,
         reuse: Option<&Arc<Locals>>,
@@ -270,7 +274,7 @@ impl<'a> NodeFit<'a> {
             None => self.own_factors(k),
         };
         for pass in first..=gn_passes {
-            let eqs = self.block_equations(k, m, &locals, (pass > 0).then_some(&th), &own);
+            let eqs = self.block_equations(k, &locals, (pass > 0).then_some(&th), &own);
             let (mut a, mut b) = self.combine(eqs, &own);
             // The normal equations as summed (the solver ridges them in place), to measure a
             // Gauss-Newton step by.
@@ -310,7 +314,6 @@ impl<'a> NodeFit<'a> {
     pub(super) fn block_equations(
         &self,
         k: usize,
-        m: &[f64],
         locals: &Locals,
         th: Option<&[f64]>,
         own: &[f64],
@@ -331,7 +334,7 @@ impl<'a> NodeFit<'a> {
             if w == 0.0 {
                 continue;
             }
-            let mi = m[i];
+            let mi = self.m[i];
             let (seg, v) = locals.at(j);
             let t = if blocks > 1 { self.terms.trials[i] } else { 0 };
             let (z, w) = match &co {
@@ -445,7 +448,7 @@ impl<'a> NodeFit<'a> {
     /// Each trial's sensitivity factor given the nodes' parameters (the force term's share of
     /// the conductance, fitted per trial in closed form on the linearisation of the first
     /// pass), normalised to a mean of 1 over trials.
-    pub(super) fn trial_gains(&self, theta: &[Vec<f64>], m: &[f64], trials: usize) -> Vec<f64> {
+    pub(super) fn trial_gains(&self, theta: &[Vec<f64>], trials: usize) -> Vec<f64> {
         let ds = self.ctx.ds;
         let n = ds.n;
         let mut num = vec![0.0; trials];
@@ -453,7 +456,7 @@ impl<'a> NodeFit<'a> {
         let coefs: Vec<_> = theta.iter().map(|th| self.terms.coefs(th)).collect();
         for (jj, &i) in self.fit_idx.iter().enumerate() {
             let j = ds.trial[i];
-            let mi = m[i];
+            let mi = self.m[i];
             for (k, (th, co)) in theta.iter().zip(&coefs).enumerate().take(n) {
                 let idx = k * self.fit_idx.len() + jj;
                 let w = self.obs.wgt[idx] * mi * mi;

@@ -184,22 +184,13 @@ fn fit_alternately(
         if rebuild {
             groups = shared_locals(terms, n, fit_idx);
         }
-        let mut fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups.clone());
-        fit.unit_m = m.iter().all(|&x| x == 1.0);
+        let fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups.clone(), m);
         // After the first iteration each node starts from its own last parameters.
         let last = it + 1 == iterations;
         let warm = (it > 0).then_some(&theta);
         let reuse = if rebuild { &[][..] } else { &locals[..] };
-        let m: &[f64] = m;
         (theta, locals) = crate::parallel::map(n, |k| {
-            fit.node(
-                k,
-                m,
-                warm.map(|t| t[k].as_slice()),
-                !last,
-                reuse.get(k),
-                None,
-            )
+            fit.node(k, warm.map(|t| t[k].as_slice()), !last, reuse.get(k), None)
         })
         .into_iter()
         .unzip();
@@ -212,8 +203,8 @@ fn fit_alternately(
         }
         if let Some(g) = gains {
             *g = match cfg.curv_per_node {
-                Some(nn) => fit.node_trial_gains(&theta, &locals, m, g.len() / nn.max(1)),
-                None => fit.trial_gains(&theta, m, g.len()),
+                Some(nn) => fit.node_trial_gains(&theta, &locals, g.len() / nn.max(1)),
+                None => fit.trial_gains(&theta, g.len()),
             };
         }
     }
@@ -237,12 +228,11 @@ fn fit_node_factors(
     let trials = g.len() / n.max(1);
     let per_node = {
         let groups = shared_locals(terms, n, fit_idx);
-        let mut fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups);
-        fit.unit_m = m.iter().all(|&x| x == 1.0);
+        let fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups, m);
         let g: &[f64] = g;
         crate::parallel::map(n, |k| {
             let own = (0..trials).map(|t| g[t * n + k]).collect();
-            fit.node_with_factors(k, m, own, updates)
+            fit.node_with_factors(k, own, updates)
         })
     };
     let mut theta = Vec::with_capacity(n);

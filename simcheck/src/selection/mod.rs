@@ -313,7 +313,6 @@ impl Selection<'_> {
         self.reform_sensitivity(round);
         drop(sp);
         let mut accepted: Vec<Best> = Vec::new();
-        self.round_best = None;
         // Saturation and crosstalk belong to the static law: decided in round 0.
         let todo: Vec<EffectKind> = EffectKind::ALL
             .into_iter()
@@ -365,6 +364,7 @@ impl Selection<'_> {
             }
         }
         drop(sp);
+        // The bar is this round's only (it is None at every round's start).
         self.round_best = None;
         let Some((effects, cv, _)) = self.best_standing(round, accepted) else {
             return false;
