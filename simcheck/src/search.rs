@@ -238,6 +238,11 @@ pub fn fit(
     max_evals: usize,
 ) -> Config {
     let objective = |c: &Config| train_sse(ctx, c, train);
+    // Nothing to choose and nothing to search (a latent drift held out on a fold's fit): the
+    // start is the fit, and its training SSE is never read.
+    if let ([only], []) = (starts, params) {
+        return reread_fitted_factors(ctx, only.clone(), train);
+    }
     let mut best: Option<(Config, f64)> = None;
     for s in starts {
         let v = objective(s);
@@ -267,8 +272,12 @@ pub fn fit(
     for (p, v) in params.iter().zip(&x) {
         p.set(&mut c, *v);
     }
-    // A latent thermal factor and per-trial sensitivities are re-read from the final
-    // evaluation (they are fitted inside it).
+    reread_fitted_factors(ctx, c, train)
+}
+
+/// `c` with a latent thermal factor and per-trial sensitivities re-read from an evaluation on
+/// the training samples (they are fitted inside every evaluation); unchanged without them.
+fn reread_fitted_factors(ctx: &Context, mut c: Config, train: &dyn Fn(usize) -> bool) -> Config {
     if matches!(&c.thermal, Some(Thermal::Latent { .. })) || c.curv_trials.is_some() {
         // A latent drift alone is re-read from a fit on the held-out evaluation's samples,
         // without predictions: every later evaluation refits the knots from these values.
