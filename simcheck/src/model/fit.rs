@@ -454,17 +454,29 @@ impl<'a> NodeFit<'a> {
         let mut num = vec![0.0; trials];
         let mut den = vec![0.0; trials];
         let coefs: Vec<_> = theta.iter().map(|th| self.terms.coefs(th)).collect();
+        // Each node's law and the rest of its conductance at each sample, node by node side by
+        // side; then the sums in sample order, as one loop would take them.
+        let (len, nodes) = (self.fit_idx.len(), n.min(theta.len()));
+        let mut parts = vec![(0.0, 0.0); nodes * len];
+        crate::parallel::chunks_mut(&mut parts, len, |k, out| {
+            for (jj, (&i, p)) in self.fit_idx.iter().zip(out.iter_mut()).enumerate() {
+                if self.obs.wgt[k * len + jj] * self.m[i] * self.m[i] != 0.0 {
+                    let q = self.terms.law(&theta[k], k, i, jj);
+                    let rest = self.terms.z_coefs(&coefs[k], k, i, jj) - self.terms.s(k, i) * q;
+                    *p = (q, rest);
+                }
+            }
+        });
         for (jj, &i) in self.fit_idx.iter().enumerate() {
             let j = ds.trial[i];
             let mi = self.m[i];
-            for (k, (th, co)) in theta.iter().zip(&coefs).enumerate().take(n) {
-                let idx = k * self.fit_idx.len() + jj;
+            for k in 0..nodes {
+                let idx = k * len + jj;
                 let w = self.obs.wgt[idx] * mi * mi;
                 if w == 0.0 {
                     continue;
                 }
-                let q = self.terms.law(th, k, i, jj);
-                let rest = self.terms.z_coefs(co, k, i, jj) - self.terms.s(k, i) * q;
+                let (q, rest) = parts[idx];
                 num[j] += w * q * (self.obs.g2[idx] / mi - rest);
                 den[j] += w * q * q;
             }
@@ -496,15 +508,26 @@ impl<'a> NodeFit<'a> {
         let mut a = vec![0.0; kk * kk];
         let mut b = vec![0.0; kk];
         let coefs: Vec<_> = theta.iter().map(|th| self.terms.coefs(th)).collect();
+        // Each node's conductance before the factor at each sample, node by node side by side;
+        // then the sums in sample order, as one loop would take them.
+        let len = self.fit_idx.len();
+        let mut qs = vec![0.0; n.min(coefs.len()) * len];
+        crate::parallel::chunks_mut(&mut qs, len, |k, out| {
+            for (jj, (&i, q)) in self.fit_idx.iter().zip(out.iter_mut()).enumerate() {
+                if self.obs.wgt[k * len + jj] != 0.0 {
+                    *q = self.terms.z_coefs(&coefs[k], k, i, jj);
+                }
+            }
+        });
         for (jj, &i) in self.fit_idx.iter().enumerate() {
             let (j, w) = hat(knots, ds.t[i]);
-            for (k, co) in coefs.iter().enumerate().take(n) {
-                let idx = k * self.fit_idx.len() + jj;
+            for k in 0..n.min(coefs.len()) {
+                let idx = k * len + jj;
                 let wt = self.obs.wgt[idx];
                 if wt == 0.0 {
                     continue;
                 }
-                let q = self.terms.z_coefs(co, k, i, jj);
+                let q = qs[idx];
                 let phi = [(j, (1.0 - w) * q), (j + 1, w * q)];
                 for &(u, xu) in &phi {
                     if u >= kk {
