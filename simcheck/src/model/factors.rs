@@ -47,7 +47,12 @@ impl NodeFit<'_> {
     /// term, with the other regressors' part held (the hysteresis terms with the factor they
     /// were fitted with), clamped to [0.05, 20] and normalised to a mean of 1 over the trials
     /// the node is loaded in (its gain carries its scale).
-    fn factors_from(&self, th: &[f64], eqs: &[(Vec<f64>, Vec<f64>)], own: &[f64]) -> Vec<f64> {
+    pub(super) fn factors_from(
+        &self,
+        th: &[f64],
+        eqs: &[(Vec<f64>, Vec<f64>)],
+        own: &[f64],
+    ) -> Vec<f64> {
         let lay = &self.terms.lay;
         let p = lay.dim();
         let (h, o) = (lay.hyst_index(), lay.law_start());

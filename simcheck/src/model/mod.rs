@@ -10,6 +10,7 @@
 
 mod factors;
 mod fit;
+mod latent;
 mod loads;
 mod terms;
 
@@ -118,7 +119,12 @@ fn evaluate_inner(
         }
         _ => {
             let factors = (&mut m, &mut latent, &mut gains);
-            fit_alternately(ctx, cfg, &mut terms, fit_data, factors, iterations)
+            fit_latent_blocks(ctx, cfg, &mut terms, fit_data, factors, iterations).unwrap_or_else(
+                || {
+                    let factors = (&mut m, &mut latent, &mut gains);
+                    fit_alternately(ctx, cfg, &mut terms, fit_data, factors, iterations)
+                },
+            )
         }
     };
     let looked: &[usize] = if want_pred { &[] } else { &fit_idx };
@@ -209,6 +215,98 @@ fn fit_alternately(
         }
     }
     (theta, locals)
+}
+
+/// As [`fit_alternately`] for a latent drift, with per-trial sensitivities per node or none:
+/// every fit before the last, and the factors between them, solved from each node's normal
+/// equations per trial and knot segment (one pass over its samples, see `latent.rs`); the last
+/// fit from the samples. None, with nothing changed, where those sums do not stand for the
+/// samples (shared per-trial sensitivities, fewer than two knots, a knot's value below
+/// [`latent::LEAST`]): the caller alternates on the samples.
+#[allow(clippy::type_complexity)]
+fn fit_latent_blocks(
+    ctx: &Context,
+    cfg: &Config,
+    terms: &mut Terms,
+    (obs, fit_idx): (&Observed, &[usize]),
+    (m, latent, gains): (
+        &mut Vec<f64>,
+        &mut Option<(Vec<f64>, Vec<f64>)>,
+        &mut Option<Vec<f64>>,
+    ),
+    iterations: usize,
+) -> Option<(Vec<Vec<f64>>, Vec<std::sync::Arc<Locals>>)> {
+    let ds = ctx.ds;
+    let n = ds.n;
+    let (knots, values) = latent.as_mut()?;
+    let usable = |v: &[f64]| v.iter().all(|&x| x >= latent::LEAST);
+    let shared_gains = gains.is_some() && cfg.curv_per_node.is_none();
+    if knots.len() < 2 || iterations < 2 || shared_gains || !usable(values) {
+        return None;
+    }
+    let trials = gains.as_ref().map_or(1, |g| g.len() / n.max(1));
+    let mut own: Vec<Vec<f64>> = (0..n)
+        .map(|k| match &*gains {
+            Some(g) => (0..trials).map(|t| g[t * n + k]).collect(),
+            None => vec![1.0],
+        })
+        .collect();
+    if let Some(g) = &*gains {
+        terms.set_node_factors(g, &ds.trial);
+    }
+    let groups = shared_locals(terms, n, fit_idx);
+    let mut vals = values.clone();
+    let (theta, locals) = {
+        let fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups.clone(), m);
+        let blocks = own.first().map_or(1, Vec::len);
+        let (mo, locals): (Vec<latent::Moments>, Vec<_>) = crate::parallel::map(n, |k| {
+            let loc = fit.locals(k, None);
+            (fit.moments(k, &loc, knots, blocks), loc)
+        })
+        .into_iter()
+        .unzip();
+        let h = terms.lay.hyst_index();
+        let kk = knots.len();
+        let mut theta = Vec::new();
+        for _ in 0..iterations - 1 {
+            let solved = crate::parallel::map(n, |k| fit.solve_moments(&mo[k], &vals, &own[k]));
+            let (mut a, mut b) = (vec![0.0; kk * kk], vec![0.0; kk]);
+            for (k, (th, _)) in solved.iter().enumerate() {
+                mo[k].add_latent((th, &own[k], h), &mut a, &mut b);
+            }
+            let next = latent::latent_values(a, b, kk);
+            if gains.is_some() {
+                own = crate::parallel::map(n, |k| {
+                    fit.factors_from(&solved[k].0, &solved[k].1, &own[k])
+                });
+            }
+            theta = solved.into_iter().map(|(th, _)| th).collect::<Vec<_>>();
+            if !usable(&next) {
+                return None;
+            }
+            vals = next;
+        }
+        (theta, locals)
+    };
+    *values = vals;
+    apply_latent(ctx, knots, values, m);
+    if let Some(g) = gains {
+        for (k, o) in own.iter().enumerate() {
+            for (t, f) in o.iter().enumerate() {
+                g[t * n + k] = *f;
+            }
+        }
+        terms.set_node_factors(g, &ds.trial);
+    }
+    // The last fit from the samples, as the alternation's: one Gauss-Newton pass from the
+    // node's last parameters (the amplifier's linear fit).
+    let fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups, m);
+    let (theta, locals): (Vec<_>, Vec<_>) = crate::parallel::map(n, |k| {
+        fit.node(k, Some(&theta[k]), false, Some(&locals[k]), None)
+    })
+    .into_iter()
+    .unzip();
+    Some((theta, locals))
 }
 
 /// Each node's parameters, local regressors and per-trial factors `g` (trial `j`, node `k` at
