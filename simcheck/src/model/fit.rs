@@ -542,18 +542,7 @@ impl<'a> NodeFit<'a> {
                 }
             }
         }
-        // A light pull towards 1 keeps knots without training data at 1.
-        let diag = (0..kk).map(|u| a[u * kk + u]).fold(0.0, f64::max) * 1e-4 + 1e-300;
-        for u in 0..kk {
-            a[u * kk + u] += diag;
-            b[u] += diag;
-        }
-        let mut v = solve_spd(&a, &b, kk);
-        let mean = v.iter().sum::<f64>() / kk as f64;
-        if mean > 0.0 {
-            v.iter_mut().for_each(|x| *x /= mean);
-        }
-        v
+        super::latent::latent_values(a, b, kk)
     }
 }
 

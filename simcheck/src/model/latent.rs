@@ -116,7 +116,7 @@ fn quad(a: &[f64], x: &[f64]) -> f64 {
 
 /// The latent factor's values at `kk` knots from its normal equations summed over the nodes,
 /// with a light pull towards 1 (knots without training data stay at 1), normalised to a mean
-/// of 1 (as `NodeFit::latent` solves it from the samples).
+/// of 1 (from the samples' sums too: `NodeFit::latent`).
 pub(super) fn latent_values(mut a: Vec<f64>, mut b: Vec<f64>, kk: usize) -> Vec<f64> {
     let diag = (0..kk).map(|u| a[u * kk + u]).fold(0.0, f64::max) * 1e-4 + 1e-300;
     for u in 0..kk {
