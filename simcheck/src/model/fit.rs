@@ -510,8 +510,8 @@ impl<'a> NodeFit<'a> {
         let coefs: Vec<_> = theta.iter().map(|th| self.terms.coefs(th)).collect();
         // Each node's conductance before the factor at each sample, node by node side by side;
         // then the sums in sample order, as one loop would take them.
-        let len = self.fit_idx.len();
-        let mut qs = vec![0.0; n.min(coefs.len()) * len];
+        let (len, nodes) = (self.fit_idx.len(), n.min(coefs.len()));
+        let mut qs = vec![0.0; nodes * len];
         crate::parallel::chunks_mut(&mut qs, len, |k, out| {
             for (jj, (&i, q)) in self.fit_idx.iter().zip(out.iter_mut()).enumerate() {
                 if self.obs.wgt[k * len + jj] != 0.0 {
@@ -521,7 +521,7 @@ impl<'a> NodeFit<'a> {
         });
         for (jj, &i) in self.fit_idx.iter().enumerate() {
             let (j, w) = hat(knots, ds.t[i]);
-            for k in 0..n.min(coefs.len()) {
+            for k in 0..nodes {
                 let idx = k * len + jj;
                 let wt = self.obs.wgt[idx];
                 if wt == 0.0 {

@@ -151,24 +151,30 @@ fn evaluate_inner(
     }
 }
 
+/// Each node's parameters and local regressors, as the per-node fits leave them.
+type Fitted = (Vec<Vec<f64>>, Vec<std::sync::Arc<Locals>>);
+
+/// What an alternation refits between the node fits: the thermal factor per sample, a latent
+/// drift's knots and values, and per-trial sensitivities.
+type Factors<'x> = (
+    &'x mut Vec<f64>,
+    &'x mut Option<(Vec<f64>, Vec<f64>)>,
+    &'x mut Option<Vec<f64>>,
+);
+
 /// Each node's parameters and local regressors, with a latent drift's thermal factor `m` (its
 /// knot values in `latent`) or per-trial sensitivities `gains` refitted between the node fits
 /// (`iterations` fits; all updated). The fits before the last take the linearisation at the
 /// observations only: the factors are fitted at that linearisation too, and the last fit
 /// takes the Gauss-Newton passes from there.
-#[allow(clippy::type_complexity)]
 fn fit_alternately(
     ctx: &Context,
     cfg: &Config,
     terms: &mut Terms,
     (obs, fit_idx): (&Observed, &[usize]),
-    (m, latent, gains): (
-        &mut Vec<f64>,
-        &mut Option<(Vec<f64>, Vec<f64>)>,
-        &mut Option<Vec<f64>>,
-    ),
+    (m, latent, gains): Factors,
     iterations: usize,
-) -> (Vec<Vec<f64>>, Vec<std::sync::Arc<Locals>>) {
+) -> Fitted {
     let ds = ctx.ds;
     let n = ds.n;
     let mut theta: Vec<Vec<f64>> = Vec::new();
@@ -223,19 +229,14 @@ fn fit_alternately(
 /// fit from the samples. None, with nothing changed, where those sums do not stand for the
 /// samples (shared per-trial sensitivities, fewer than two knots, a knot's value below
 /// [`latent::LEAST`]): the caller alternates on the samples.
-#[allow(clippy::type_complexity)]
 fn fit_latent_blocks(
     ctx: &Context,
     cfg: &Config,
     terms: &mut Terms,
     (obs, fit_idx): (&Observed, &[usize]),
-    (m, latent, gains): (
-        &mut Vec<f64>,
-        &mut Option<(Vec<f64>, Vec<f64>)>,
-        &mut Option<Vec<f64>>,
-    ),
+    (m, latent, gains): Factors,
     iterations: usize,
-) -> Option<(Vec<Vec<f64>>, Vec<std::sync::Arc<Locals>>)> {
+) -> Option<Fitted> {
     let ds = ctx.ds;
     let n = ds.n;
     let (knots, values) = latent.as_mut()?;
@@ -320,7 +321,7 @@ fn fit_node_factors(
     ((obs, fit_idx), m): ((&Observed, &[usize]), &[f64]),
     g: &mut [f64],
     updates: usize,
-) -> (Vec<Vec<f64>>, Vec<std::sync::Arc<Locals>>) {
+) -> Fitted {
     let n = ctx.ds.n;
     terms.set_node_factors(g, &ctx.ds.trial);
     let trials = g.len() / n.max(1);
