@@ -233,6 +233,7 @@ impl NodeFit<'_> {
 
 #[cfg(test)]
 mod tests {
+    use super::super::alternate::{fit_alternately, fit_latent_blocks};
     use super::super::*;
     use crate::data::ReadoutMap;
 
