@@ -279,16 +279,9 @@ pub fn fit(
 /// the training samples (they are fitted inside every evaluation); unchanged without them.
 fn reread_fitted_factors(ctx: &Context, mut c: Config, train: &dyn Fn(usize) -> bool) -> Config {
     if matches!(&c.thermal, Some(Thermal::Latent { .. })) || c.curv_trials.is_some() {
-        // A latent drift alone is re-read from a fit on the held-out evaluation's samples,
-        // without predictions: every later evaluation refits the knots from these values.
-        // Per-trial sensitivities from a fit on every training sample, also without
-        // predictions (only what the fit left is read).
-        let stride = if c.curv_trials.is_none() {
-            ctx.held_out_stride()
-        } else {
-            1
-        };
-        let ev = evaluate_with(ctx, &c, train, stride, false);
+        // Re-read from a fit on the held-out evaluation's samples, without predictions:
+        // every later evaluation refits the knots and the sensitivities from these values.
+        let ev = evaluate_with(ctx, &c, train, ctx.held_out_stride(), false);
         if let (Some(Thermal::Latent { values, .. }), Some(v)) = (&mut c.thermal, ev.latent) {
             *values = v;
         }
