@@ -6,9 +6,9 @@
 use crate::candidates::ParamCount;
 use crate::context::Context;
 use crate::effects::Config;
-use crate::model::{evaluate_held_out, Eval};
+use crate::model::{evaluate_held_out_rereading, Eval};
 use crate::noise::NoiseModel;
-use crate::search::{fit, Param};
+use crate::search::{fit_unread, with_fitted_factors, Param};
 
 /// Acceptance thresholds (documented in docs/simcheck.md).
 pub const MIN_BLOCK_T: f64 = 3.0;
@@ -69,8 +69,13 @@ pub fn cross_validate_from(
     let mut resid = vec![0.0; ds.len() * n];
     let fold = |f: usize| -> (Config, Eval) {
         let train = |i: usize| ctx.fold(i) != f;
-        let cfg = fit(ctx, starts[f], params, &train, max_evals);
-        let ev = evaluate_held_out(ctx, &cfg, &train);
+        // The search's end re-reads the fitted factors in the held-out evaluation's fit.
+        let cfg = fit_unread(ctx, starts[f], params, &train, max_evals);
+        let mut ev = evaluate_held_out_rereading(ctx, &cfg, &train);
+        let cfg = match ev.first_round.take() {
+            Some((values, gains)) => with_fitted_factors(cfg, values, gains),
+            None => cfg,
+        };
         (cfg, ev)
     };
     let (a, b) = crate::parallel::join(|| fold(0), || fold(1));

@@ -229,8 +229,23 @@ pub fn train_sse(ctx: &Context, cfg: &Config, train: &dyn Fn(usize) -> bool) -> 
 }
 
 /// Fits the listed parameters of `cfg` on the samples where `train` holds: a coarse grid over
-/// the alternative starting points `starts`, then Nelder-Mead from the best.
+/// the alternative starting points `starts`, then Nelder-Mead from the best; a latent drift's
+/// knot values and per-trial sensitivities are then re-read from a fit of the result.
 pub fn fit(
+    ctx: &Context,
+    starts: &[Config],
+    params: &[Param],
+    train: &dyn Fn(usize) -> bool,
+    max_evals: usize,
+) -> Config {
+    let c = fit_unread(ctx, starts, params, train, max_evals);
+    reread_fitted_factors(ctx, c, train)
+}
+
+/// As [`fit`] without the re-read at its end: the search's result with its start's latent drift
+/// and per-trial sensitivities (a cross-validation fold re-reads them in its held-out
+/// evaluation, see [`crate::model::evaluate_held_out_rereading`]).
+pub fn fit_unread(
     ctx: &Context,
     starts: &[Config],
     params: &[Param],
@@ -241,7 +256,7 @@ pub fn fit(
     // Nothing to choose and nothing to search (a latent drift held out on a fold's fit): the
     // start is the fit, and its training SSE is never read.
     if let ([only], []) = (starts, params) {
-        return reread_fitted_factors(ctx, only.clone(), train);
+        return only.clone();
     }
     let mut best: Option<(Config, f64)> = None;
     for s in starts {
@@ -272,22 +287,33 @@ pub fn fit(
     for (p, v) in params.iter().zip(&x) {
         p.set(&mut c, *v);
     }
-    reread_fitted_factors(ctx, c, train)
+    c
 }
 
 /// `c` with a latent thermal factor and per-trial sensitivities re-read from an evaluation on
 /// the training samples (they are fitted inside every evaluation); unchanged without them.
-fn reread_fitted_factors(ctx: &Context, mut c: Config, train: &dyn Fn(usize) -> bool) -> Config {
+fn reread_fitted_factors(ctx: &Context, c: Config, train: &dyn Fn(usize) -> bool) -> Config {
     if matches!(&c.thermal, Some(Thermal::Latent { .. })) || c.curv_trials.is_some() {
         // Re-read from a fit on the held-out evaluation's samples, without predictions:
         // every later evaluation refits the knots and the sensitivities from these values.
         let ev = evaluate_with(ctx, &c, train, ctx.held_out_stride(), false);
-        if let (Some(Thermal::Latent { values, .. }), Some(v)) = (&mut c.thermal, ev.latent) {
-            *values = v;
-        }
-        if ev.trial_gains.is_some() {
-            c.curv_trials = ev.trial_gains;
-        }
+        return with_fitted_factors(c, ev.latent, ev.trial_gains);
+    }
+    c
+}
+
+/// `c` with a latent drift's knot `values` and per-trial sensitivities `gains` as a fit left
+/// them, where there are any.
+pub fn with_fitted_factors(
+    mut c: Config,
+    values: Option<Vec<f64>>,
+    gains: Option<Vec<f64>>,
+) -> Config {
+    if let (Some(Thermal::Latent { values: v, .. }), Some(fitted)) = (&mut c.thermal, values) {
+        *v = fitted;
+    }
+    if gains.is_some() {
+        c.curv_trials = gains;
     }
     c
 }

@@ -75,3 +75,34 @@ pub fn cv_of(resid: Vec<f64>) -> crate::cv::Cv {
         colour: std::sync::OnceLock::new(),
     }
 }
+
+/// Two nodes through a falling divider, three mountings (node 0's sensitivity 0.8x in
+/// trial 1, node 1's 1.25x in trial 2), and a common drift of the conductance by
+/// 0.75-1.25 over the recording.
+pub fn drifting() -> crate::data::Dataset {
+    let mut ds = crate::testdata::presses_on(1, 2);
+    let len = ds.len();
+    ds.trial = (0..len).map(|i| i * 3 / len).collect();
+    ds.n_trials = 3;
+    ds.trial_recorded = true;
+    ds.map = crate::data::ReadoutMap::Divider {
+        max: 4095.0,
+        r_ref: 10_000.0,
+        rises: false,
+    };
+    let dur = ds.duration();
+    ds.y = (0..len * 2)
+        .map(|idx| {
+            let (i, k) = (idx / 2, idx % 2);
+            let f = match (ds.trial[i], k) {
+                (1, 0) => 0.8,
+                (2, 1) => 1.25,
+                _ => 1.0,
+            };
+            let m = 1.0 + 0.25 * (std::f64::consts::TAU * ds.t[i] / dur).sin();
+            let g = m * (20e-6 + 40e-6 * (1.0 + k as f64) * f * ds.force[i]);
+            ds.map.from_g(g)
+        })
+        .collect();
+    ds
+}

@@ -4,7 +4,7 @@
 
 use super::fit::{Locals, NodeFit};
 use super::terms::Terms;
-use super::{apply_latent, latent, Observed};
+use super::{apply_latent, latent, FirstRound, Observed};
 use crate::context::Context;
 use crate::effects::Config;
 
@@ -18,6 +18,75 @@ pub(super) type Factors<'x> = (
     &'x mut Option<(Vec<f64>, Vec<f64>)>,
     &'x mut Option<Vec<f64>>,
 );
+
+/// Each node's parameters and local regressors with the factors fitted alternately,
+/// `iterations` fits (see [`fit_alternately`]): on the sums where they stand for the samples
+/// ([`fit_node_factors`], [`fit_latent_blocks`]), else on the samples.
+pub(super) fn fit_round(
+    ctx: &Context,
+    cfg: &Config,
+    terms: &mut Terms,
+    fit_data: (&Observed, &[usize]),
+    (m, latent, gains): Factors,
+    iterations: usize,
+) -> Fitted {
+    match gains {
+        Some(g) if latent.is_none() && cfg.curv_per_node.is_some() => {
+            let updates = (iterations - 1, None);
+            fit_node_factors(ctx, cfg, terms, (fit_data, m), g, updates).0
+        }
+        _ => {
+            let factors = (&mut *m, &mut *latent, &mut *gains);
+            match fit_latent_blocks(ctx, cfg, terms, fit_data, factors, iterations, None) {
+                Some((fitted, _)) => fitted,
+                None => fit_alternately(ctx, cfg, terms, fit_data, (m, latent, gains), iterations),
+            }
+        }
+    }
+}
+
+/// [`fit_round`] in two rounds when `rounds` is 2 and there is something to alternate, the
+/// second from the factors the first left, and those factors: what a search's end re-reads
+/// and the held-out evaluation then refits from (see [`super::evaluate_held_out_rereading`]).
+/// On the sums the second round continues the first's alternation (its fits and factors are
+/// the next iterations of the same sums, so the first round's last fit, which would go to the
+/// samples, is left out); elsewhere the rounds run one after the other. Either way the same
+/// numbers as two evaluations.
+pub(super) fn fit_rounds(
+    ctx: &Context,
+    cfg: &Config,
+    terms: &mut Terms,
+    fit_data: (&Observed, &[usize]),
+    (m, latent, gains): Factors,
+    (iterations, rounds): (usize, usize),
+) -> (Fitted, Option<FirstRound>) {
+    if rounds < 2 || iterations < 2 {
+        let fitted = fit_round(ctx, cfg, terms, fit_data, (m, latent, gains), iterations);
+        return (fitted, None);
+    }
+    let updates = iterations - 1;
+    match gains {
+        Some(g) if latent.is_none() && cfg.curv_per_node.is_some() => {
+            let twice = (2 * updates, Some(updates));
+            let (fitted, first) = fit_node_factors(ctx, cfg, terms, (fit_data, m), g, twice);
+            return (fitted, Some((None, first)));
+        }
+        _ => {
+            let factors = (&mut *m, &mut *latent, &mut *gains);
+            let twice = 2 * updates + 1;
+            if let Some(out) =
+                fit_latent_blocks(ctx, cfg, terms, fit_data, factors, twice, Some(updates))
+            {
+                return out;
+            }
+        }
+    }
+    let factors = (&mut *m, &mut *latent, &mut *gains);
+    fit_round(ctx, cfg, terms, fit_data, factors, iterations);
+    let first = (latent.as_ref().map(|l| l.1.clone()), gains.clone());
+    let fitted = fit_round(ctx, cfg, terms, fit_data, (m, latent, gains), iterations);
+    (fitted, Some(first))
+}
 
 /// Each node's parameters and local regressors, with a latent drift's thermal factor `m` (its
 /// knot values in `latent`) or per-trial sensitivities `gains` refitted between the node fits
@@ -93,7 +162,8 @@ pub(super) fn fit_latent_blocks(
     (obs, fit_idx): (&Observed, &[usize]),
     (m, latent, gains): Factors,
     iterations: usize,
-) -> Option<Fitted> {
+    mark: Option<usize>,
+) -> Option<(Fitted, Option<FirstRound>)> {
     let ds = ctx.ds;
     let n = ds.n;
     let (knots, values) = latent.as_mut()?;
@@ -114,6 +184,7 @@ pub(super) fn fit_latent_blocks(
     }
     let groups = shared_locals(terms, n, fit_idx);
     let mut vals = values.clone();
+    let mut first = None;
     let (theta, locals) = {
         let fit = NodeFit::new(ctx, cfg, terms, (obs, fit_idx), groups.clone(), m);
         let blocks = own.first().map_or(1, Vec::len);
@@ -126,7 +197,7 @@ pub(super) fn fit_latent_blocks(
         let h = terms.lay.hyst_index();
         let kk = knots.len();
         let mut theta = Vec::new();
-        for _ in 0..iterations - 1 {
+        for it in 0..iterations - 1 {
             let solved = crate::parallel::map(n, |k| fit.solve_moments(&mo[k], &vals, &own[k]));
             let (mut a, mut b) = (vec![0.0; kk * kk], vec![0.0; kk]);
             for (k, (th, _)) in solved.iter().enumerate() {
@@ -143,17 +214,16 @@ pub(super) fn fit_latent_blocks(
                 return None;
             }
             vals = next;
+            if mark == Some(it + 1) {
+                first = Some((Some(vals.clone()), gains.is_some().then(|| by_trial(&own))));
+            }
         }
         (theta, locals)
     };
     *values = vals;
     apply_latent(ctx, knots, values, m);
     if let Some(g) = gains {
-        for (k, o) in own.iter().enumerate() {
-            for (t, f) in o.iter().enumerate() {
-                g[t * n + k] = *f;
-            }
-        }
+        g.iter_mut().zip(by_trial(&own)).for_each(|(d, f)| *d = f);
         terms.set_node_factors(g, &ds.trial);
     }
     // The last fit from the samples, as the alternation's: one Gauss-Newton pass from the
@@ -164,21 +234,21 @@ pub(super) fn fit_latent_blocks(
     })
     .into_iter()
     .unzip();
-    Some((theta, locals))
+    Some(((theta, locals), first))
 }
 
 /// Each node's parameters, local regressors and per-trial factors `g` (trial `j`, node `k` at
 /// `j n + k`; updated), fitted node by node: `updates` alternations (see
-/// [`NodeFit::node_with_factors`]). `terms` are left with the factors the nodes were fitted
-/// with last.
+/// [`NodeFit::node_with_factors`]), and the factors after the first `mark` of them. `terms`
+/// are left with the factors the nodes were fitted with last.
 pub(super) fn fit_node_factors(
     ctx: &Context,
     cfg: &Config,
     terms: &mut Terms,
     ((obs, fit_idx), m): ((&Observed, &[usize]), &[f64]),
     g: &mut [f64],
-    updates: usize,
-) -> Fitted {
+    (updates, mark): (usize, Option<usize>),
+) -> (Fitted, Option<Vec<f64>>) {
     let n = ctx.ds.n;
     terms.set_node_factors(g, &ctx.ds.trial);
     let trials = g.len() / n.max(1);
@@ -188,20 +258,37 @@ pub(super) fn fit_node_factors(
         let g: &[f64] = g;
         crate::parallel::map(n, |k| {
             let own = (0..trials).map(|t| g[t * n + k]).collect();
-            fit.node_with_factors(k, own, updates)
+            fit.node_with_factors(k, own, updates, mark)
         })
     };
     let mut theta = Vec::with_capacity(n);
     let mut locals = Vec::with_capacity(n);
-    for (k, (th, loc, own)) in per_node.into_iter().enumerate() {
+    let mut own = Vec::with_capacity(n);
+    let mut marked = Vec::with_capacity(n);
+    for (th, loc, o, at_mark) in per_node {
         theta.push(th);
         locals.push(loc);
-        for (t, f) in own.into_iter().enumerate() {
-            g[t * n + k] = f;
+        own.push(o);
+        marked.extend(at_mark);
+    }
+    g.iter_mut().zip(by_trial(&own)).for_each(|(d, f)| *d = f);
+    terms.set_node_factors(g, &ctx.ds.trial);
+    let first = (marked.len() == n).then(|| by_trial(&marked));
+    ((theta, locals), first)
+}
+
+/// Each node's per-trial factors (`own[k][j]`) laid out trial by trial (trial `j`, node `k` at
+/// `j n + k`).
+fn by_trial(own: &[Vec<f64>]) -> Vec<f64> {
+    let n = own.len();
+    let trials = own.first().map_or(0, Vec::len);
+    let mut g = vec![1.0; trials * n];
+    for (k, o) in own.iter().enumerate() {
+        for (t, f) in o.iter().enumerate() {
+            g[t * n + k] = *f;
         }
     }
-    terms.set_node_factors(g, &ctx.ds.trial);
-    (theta, locals)
+    g
 }
 
 /// The local regressors of each group of nodes that share them (see [`Terms::group`]): one set
@@ -228,4 +315,113 @@ fn shared_locals(terms: &Terms, n: usize, fit_idx: &[usize]) -> Vec<std::sync::A
     crate::parallel::map(groups, |g| {
         std::sync::Arc::new(Locals::new(terms, first[g], fit_idx))
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{evaluate_held_out, evaluate_held_out_rereading, evaluate_with, Eval};
+    use crate::context::Context;
+    use crate::effects::{Config, Thermal};
+
+    fn close(a: &[f64], b: &[f64], what: &str) {
+        assert_eq!(a.len(), b.len(), "{what}");
+        for (x, y) in a.iter().zip(b) {
+            assert!(
+                (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1e-12),
+                "{what}: {a:?} against {b:?}"
+            );
+        }
+    }
+
+    /// What a fold did before the two rounds: the factors re-read from a fit on the held-out
+    /// evaluation's samples, then the held-out evaluation from them.
+    fn reread_then_held_out(ctx: &Context, cfg: &Config, train: &dyn Fn(usize) -> bool) -> Eval {
+        let read = evaluate_with(ctx, cfg, train, ctx.held_out_stride(), false);
+        let cfg = crate::search::with_fitted_factors(cfg.clone(), read.latent, read.trial_gains);
+        let mut ev = evaluate_held_out(ctx, &cfg, train);
+        let values = match &cfg.thermal {
+            Some(Thermal::Latent { values, .. }) => Some(values.clone()),
+            _ => None,
+        };
+        ev.first_round = Some((values, cfg.curv_trials.clone()));
+        ev
+    }
+
+    #[test]
+    fn two_rounds_in_one_evaluation_are_the_reread_and_the_held_out_evaluation() {
+        let ds = crate::testdata::drifting();
+        let ctx = Context::new(&ds);
+        let knots = crate::forms::latent_knots_n(&ds, 5);
+        let latent = Config {
+            thermal: Some(Thermal::Latent {
+                values: vec![1.0; knots.len()],
+                knots_s: knots,
+            }),
+            ..Config::base(1.0, 0.0)
+        };
+        let per_node = |c: &Config| Config {
+            curv_trials: Some(vec![1.0; 6]),
+            curv_per_node: Some(2),
+            ..c.clone()
+        };
+        let shared = |c: &Config| Config {
+            curv_trials: Some(vec![1.0; 3]),
+            ..c.clone()
+        };
+        let base = Config::base(1.0, 0.0);
+        // On the sums: per-node sensitivities, a latent drift, both. On the samples: shared
+        // sensitivities, alone and with the drift.
+        let cases = [
+            per_node(&base),
+            latent.clone(),
+            per_node(&latent),
+            shared(&base),
+            shared(&latent),
+        ];
+        let train = |i: usize| !i.is_multiple_of(3);
+        for (c, cfg) in cases.iter().enumerate() {
+            let want = reread_then_held_out(&ctx, cfg, &train);
+            let got = evaluate_held_out_rereading(&ctx, cfg, &train);
+            let what = |x: &str| format!("case {c}: {x}");
+            close(&got.pred, &want.pred, &what("held-out predictions"));
+            let (Some((gv, gg)), Some((wv, wg))) = (&got.first_round, &want.first_round) else {
+                panic!("case {c}: no first round");
+            };
+            close(
+                &gv.clone().unwrap_or_default(),
+                &wv.clone().unwrap_or_default(),
+                &what("re-read knots"),
+            );
+            close(
+                &gg.clone().unwrap_or_default(),
+                &wg.clone().unwrap_or_default(),
+                &what("re-read factors"),
+            );
+            // The first round moved the factors from where they started (all ones).
+            let moved = gv
+                .iter()
+                .chain(gg)
+                .flatten()
+                .any(|x| (x - 1.0).abs() > 0.02);
+            assert!(moved, "case {c}: {gv:?} {gg:?}");
+            let final_factors = |e: &Eval| {
+                let mut f = e.latent.clone().unwrap_or_default();
+                f.extend(e.trial_gains.clone().unwrap_or_default());
+                f
+            };
+            close(
+                &final_factors(&got),
+                &final_factors(&want),
+                &what("final factors"),
+            );
+        }
+        // Nothing to alternate: one round, and no first round to read.
+        let plain = evaluate_held_out_rereading(&ctx, &base, &train);
+        assert!(plain.first_round.is_none());
+        close(
+            &plain.pred,
+            &evaluate_held_out(&ctx, &base, &train).pred,
+            "no factors",
+        );
+    }
 }

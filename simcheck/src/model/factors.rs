@@ -11,15 +11,16 @@ impl NodeFit<'_> {
     /// Node `k`'s parameters, local regressors and per-trial factors, fitted alternately
     /// `updates` times from the factors `own` at the linearisation at the observations, then
     /// the node's fit given the last factors (a readout that is not linear in conductance
-    /// takes one Gauss-Newton pass there). Each linear step is solved from the node's normal
-    /// equations per trial, summed once over the samples (see [`NodeFit::block_equations`]):
-    /// the factors only scale them.
+    /// takes one Gauss-Newton pass there), and the factors after the first `mark` updates.
+    /// Each linear step is solved from the node's normal equations per trial, summed once
+    /// over the samples (see [`NodeFit::block_equations`]): the factors only scale them.
     pub(super) fn node_with_factors(
         &self,
         k: usize,
         mut own: Vec<f64>,
         updates: usize,
-    ) -> (Vec<f64>, Arc<Locals>, Vec<f64>) {
+        mark: Option<usize>,
+    ) -> (Vec<f64>, Arc<Locals>, Vec<f64>, Option<Vec<f64>>) {
         let locals = self.locals(k, None);
         let eqs = self.block_equations(k, &locals, None, &own);
         let solve = |own: &[f64]| {
@@ -27,8 +28,12 @@ impl NodeFit<'_> {
             self.solve(&mut a, &mut b)
         };
         let mut th = solve(&own);
+        let mut marked = None;
         for u in 0..updates {
             own = self.factors_from(&th, &eqs, &own);
+            if mark == Some(u + 1) {
+                marked = Some(own.clone());
+            }
             if u + 1 < updates {
                 th = solve(&own);
             }
@@ -38,7 +43,7 @@ impl NodeFit<'_> {
         } else {
             th = self.node(k, Some(&th), false, Some(&locals), Some(&own)).0;
         }
-        (th, locals, own)
+        (th, locals, own, marked)
     }
 
     /// The node's per-trial factors given its parameters `th` (fitted with factors `own`), in

@@ -235,38 +235,6 @@ impl NodeFit<'_> {
 mod tests {
     use super::super::alternate::{fit_alternately, fit_latent_blocks};
     use super::super::*;
-    use crate::data::ReadoutMap;
-
-    /// Two nodes through a falling divider, three mountings (node 0's sensitivity 0.8x in
-    /// trial 1, node 1's 1.25x in trial 2), and a common drift of the conductance by
-    /// 0.75-1.25 over the recording.
-    fn drifting() -> crate::data::Dataset {
-        let mut ds = crate::testdata::presses_on(1, 2);
-        let len = ds.len();
-        ds.trial = (0..len).map(|i| i * 3 / len).collect();
-        ds.n_trials = 3;
-        ds.trial_recorded = true;
-        ds.map = ReadoutMap::Divider {
-            max: 4095.0,
-            r_ref: 10_000.0,
-            rises: false,
-        };
-        let dur = ds.duration();
-        ds.y = (0..len * 2)
-            .map(|idx| {
-                let (i, k) = (idx / 2, idx % 2);
-                let f = match (ds.trial[i], k) {
-                    (1, 0) => 0.8,
-                    (2, 1) => 1.25,
-                    _ => 1.0,
-                };
-                let m = 1.0 + 0.25 * (std::f64::consts::TAU * ds.t[i] / dur).sin();
-                let g = m * (20e-6 + 40e-6 * (1.0 + k as f64) * f * ds.force[i]);
-                ds.map.from_g(g)
-            })
-            .collect();
-        ds
-    }
 
     /// The fit of `cfg` on every sample: alternating on the sums (`blocks`) or on the samples.
     #[allow(clippy::type_complexity)]
@@ -283,7 +251,7 @@ mod tests {
         let factors = (&mut m, &mut latent, &mut gains);
         let data = (&*obs, &fit_idx[..]);
         let (theta, _) = if blocks {
-            fit_latent_blocks(ctx, cfg, &mut terms, data, factors, 3)?
+            fit_latent_blocks(ctx, cfg, &mut terms, data, factors, 3, None)?.0
         } else {
             fit_alternately(ctx, cfg, &mut terms, data, factors, 3)
         };
@@ -302,7 +270,7 @@ mod tests {
 
     #[test]
     fn the_alternation_on_the_sums_is_the_alternation_on_the_samples() {
-        let ds = drifting();
+        let ds = crate::testdata::drifting();
         let ctx = Context::new(&ds);
         let knots = crate::forms::latent_knots_n(&ds, 5);
         let latent = Some(Thermal::Latent {
@@ -340,7 +308,7 @@ mod tests {
 
     #[test]
     fn a_knot_below_the_least_value_or_shared_factors_go_to_the_samples() {
-        let ds = drifting();
+        let ds = crate::testdata::drifting();
         let ctx = Context::new(&ds);
         let knots = crate::forms::latent_knots_n(&ds, 3);
         let low = Config {

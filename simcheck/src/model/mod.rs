@@ -22,9 +22,14 @@ use crate::context::Context;
 use crate::effects::{Config, Thermal};
 pub use crate::numeric::{centre_by_level, play_gap, solve_spd};
 use crate::numeric::{hat, lowpass};
-use alternate::{fit_alternately, fit_latent_blocks, fit_node_factors};
+use alternate::fit_rounds;
 use fit::Locals;
 use terms::Terms;
+
+/// A latent drift's knot values and the per-trial sensitivities (trial `j`, node `k` at
+/// `j n + k`) after the first round of an alternation that runs two (see
+/// [`evaluate_held_out_rereading`]).
+pub type FirstRound = (Option<Vec<f64>>, Option<Vec<f64>>);
 
 /// Result of one evaluation.
 pub struct Eval {
@@ -38,6 +43,9 @@ pub struct Eval {
     pub latent: Option<Vec<f64>>,
     /// The per-trial sensitivities after fitting (if the sensitivity is per trial).
     pub trial_gains: Option<Vec<f64>>,
+    /// With [`evaluate_held_out_rereading`], when there are factors to fit: the latent values
+    /// and the per-trial sensitivities as the first round left them (the re-read).
+    pub first_round: Option<FirstRound>,
     /// Training SSE (only when predictions were not requested).
     pub train_sse: f64,
 }
@@ -52,7 +60,23 @@ pub fn evaluate(ctx: &Context, cfg: &Config, train: &dyn Fn(usize) -> bool) -> E
 /// a cross-validation fold needs. The per-node fit looks at every [`Context::held_out_stride`]-th
 /// training sample (every one up to [`crate::context::FIT_SAMPLES`] samples).
 pub fn evaluate_held_out(ctx: &Context, cfg: &Config, train: &dyn Fn(usize) -> bool) -> Eval {
-    evaluate_inner(ctx, cfg, train, ctx.held_out_stride(), true, true)
+    evaluate_inner(ctx, cfg, train, ctx.held_out_stride(), true, true, 1)
+}
+
+/// As [`evaluate_held_out`] for a configuration straight out of a search, whose fitted factors
+/// (a latent drift's knot values, per-trial sensitivities) are still its start's: the factors
+/// are first re-read from a fit on the same samples (what [`crate::search::fit`] does at a
+/// search's end) and the held-out fit refits them from there. Both in one evaluation, the
+/// alternation in two rounds (see `alternate::fit_rounds`), the factors the first round left
+/// in [`Eval::first_round`]. The same numbers as the two evaluations to rounding (about 1e-12:
+/// a power law's table spans the load at every sample here, at the fit's samples in a fit
+/// without predictions).
+pub fn evaluate_held_out_rereading(
+    ctx: &Context,
+    cfg: &Config,
+    train: &dyn Fn(usize) -> bool,
+) -> Eval {
+    evaluate_inner(ctx, cfg, train, ctx.held_out_stride(), true, true, 2)
 }
 
 /// As [`evaluate`], fitting on every `stride`-th training sample; with `want_pred` false only
@@ -64,7 +88,7 @@ pub fn evaluate_with(
     stride: usize,
     want_pred: bool,
 ) -> Eval {
-    evaluate_inner(ctx, cfg, train, stride, want_pred, false)
+    evaluate_inner(ctx, cfg, train, stride, want_pred, false, 1)
 }
 
 fn evaluate_inner(
@@ -74,6 +98,7 @@ fn evaluate_inner(
     stride: usize,
     want_pred: bool,
     held_out_only: bool,
+    rounds: usize,
 ) -> Eval {
     crate::timing::count_eval();
     let stride = stride.max(1);
@@ -115,20 +140,15 @@ fn evaluate_inner(
         1
     };
     let fit_data = (&*obs, &fit_idx[..]);
-    let (theta, locals) = match &mut gains {
-        Some(g) if latent.is_none() && cfg.curv_per_node.is_some() => {
-            fit_node_factors(ctx, cfg, &mut terms, (fit_data, &m), g, iterations - 1)
-        }
-        _ => {
-            let factors = (&mut m, &mut latent, &mut gains);
-            fit_latent_blocks(ctx, cfg, &mut terms, fit_data, factors, iterations).unwrap_or_else(
-                || {
-                    let factors = (&mut m, &mut latent, &mut gains);
-                    fit_alternately(ctx, cfg, &mut terms, fit_data, factors, iterations)
-                },
-            )
-        }
-    };
+    let factors = (&mut m, &mut latent, &mut gains);
+    let ((theta, locals), first_round) = fit_rounds(
+        ctx,
+        cfg,
+        &mut terms,
+        fit_data,
+        factors,
+        (iterations, rounds),
+    );
     let looked: &[usize] = if want_pred { &[] } else { &fit_idx };
     let skip: Vec<bool> = if held_out_only {
         (0..len).map(train).collect()
@@ -149,6 +169,7 @@ fn evaluate_inner(
         m,
         latent: latent.map(|l| l.1),
         trial_gains: gains,
+        first_round,
         train_sse,
     }
 }
