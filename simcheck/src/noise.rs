@@ -61,8 +61,9 @@ pub struct NoiseModel {
 }
 
 /// Autocovariances at lags `lags` of `x` over the runs of consecutive samples where `keep`
-/// holds (pairs must both be kept), about the mean of the kept samples.
-fn autocov(x: &[f64], keep: &[bool], lags: &[usize]) -> Vec<f64> {
+/// holds (pairs must both be kept), about the mean of the kept samples. All lags in one pass
+/// over the samples (each lag's sum in the same order as a pass of its own).
+fn autocov<const L: usize>(x: &[f64], keep: &[bool], lags: &[usize; L]) -> Vec<f64> {
     let kept: Vec<f64> = x
         .iter()
         .zip(keep)
@@ -70,24 +71,26 @@ fn autocov(x: &[f64], keep: &[bool], lags: &[usize]) -> Vec<f64> {
         .map(|(v, _)| *v)
         .collect();
     if kept.len() < 10 {
-        return vec![0.0; lags.len()];
+        return vec![0.0; L];
     }
     let mean = kept.iter().sum::<f64>() / kept.len() as f64;
-    lags.iter()
-        .map(|&l| {
-            let (mut s, mut c) = (0.0, 0usize);
-            for i in 0..x.len().saturating_sub(l) {
-                if keep[i] && keep[i + l] {
-                    s += (x[i] - mean) * (x[i + l] - mean);
-                    c += 1;
-                }
+    let len = x.len().min(keep.len());
+    let (mut s, mut c) = ([0.0; L], [0usize; L]);
+    for i in 0..len {
+        if !keep[i] {
+            continue;
+        }
+        let xi = x[i] - mean;
+        for q in 0..L {
+            let j = i + lags[q];
+            if j < len && keep[j] {
+                s[q] += xi * (x[j] - mean);
+                c[q] += 1;
             }
-            if c > 5 {
-                s / c as f64
-            } else {
-                0.0
-            }
-        })
+        }
+    }
+    (0..L)
+        .map(|q| if c[q] > 5 { s[q] / c[q] as f64 } else { 0.0 })
         .collect()
 }
 
@@ -179,11 +182,19 @@ fn parts(g: &[f64], big: usize) -> Parts {
 
 /// `sum_ij x_i x_j rho^|i-j|` in one pass.
 fn ar_quadratic(x: &[f64], rho: f64) -> f64 {
-    let mut f = 0.0;
-    let mut s = 0.0;
+    ar_quadratics(x, [rho])[0]
+}
+
+/// [`ar_quadratic`] for each of `rhos`, in one pass (each sum in the same order as a pass of
+/// its own).
+fn ar_quadratics<const R: usize>(x: &[f64], rhos: [f64; R]) -> [f64; R] {
+    let mut f = [0.0; R];
+    let mut s = [0.0; R];
     for &v in x {
-        f = v + rho * f;
-        s += v * (2.0 * f - v);
+        for q in 0..R {
+            f[q] = v + rhos[q] * f[q];
+            s[q] += v * (2.0 * f[q] - v);
+        }
     }
     s
 }
@@ -259,9 +270,10 @@ impl NoiseModel {
             let p = &self.nodes[k];
             let col: Vec<f64> = (0..len).map(|i| d[i * n + k]).collect();
             let own: f64 = col.iter().map(|v| v * v).sum();
+            let [fast, slow] = ar_quadratics(&col, [p.rho_fast, p.rho_slow]);
             (p.white - c.white).max(0.0) * own
-                + (p.fast - c.fast).max(0.0) * ar_quadratic(&col, p.rho_fast)
-                + (p.slow - c.slow).max(0.0) * ar_quadratic(&col, p.rho_slow)
+                + (p.fast - c.fast).max(0.0) * fast
+                + (p.slow - c.slow).max(0.0) * slow
         });
         let mut q = 0.0;
         for v in per_node {
@@ -272,9 +284,8 @@ impl NoiseModel {
                 .map(|i| d[i * n..(i + 1) * n].iter().sum())
                 .collect();
             let ss: f64 = sum.iter().map(|v| v * v).sum();
-            q += c.white * ss
-                + c.fast * ar_quadratic(&sum, c.rho_fast)
-                + c.slow * ar_quadratic(&sum, c.rho_slow);
+            let [fast, slow] = ar_quadratics(&sum, [c.rho_fast, c.rho_slow]);
+            q += c.white * ss + c.fast * fast + c.slow * slow;
         }
         q / dd
     }
@@ -371,10 +382,8 @@ impl NoiseModel {
         if dd <= 0.0 {
             return p.total();
         }
-        (p.white * dd
-            + p.fast * ar_quadratic(&col, p.rho_fast)
-            + p.slow * ar_quadratic(&col, p.rho_slow))
-            / dd
+        let [fast, slow] = ar_quadratics(&col, [p.rho_fast, p.rho_slow]);
+        (p.white * dd + p.fast * fast + p.slow * slow) / dd
     }
 
     /// White noise of variance `var` on each of `n` nodes, nothing else (for tests).
