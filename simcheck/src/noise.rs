@@ -474,6 +474,30 @@ mod tests {
     use taxel_sim::rng::Rng;
 
     #[test]
+    fn by_node_holds_each_nodes_column_and_the_one_pass_forms_the_passes_of_their_own() {
+        // Five nodes (halves of three and two), seven samples: node k's column at k * 7.
+        let d: Vec<f64> = (0..35).map(|x| x as f64 * 1.5 - 7.0).collect();
+        let cols = by_node(&d, 5);
+        for k in 0..5 {
+            let want: Vec<f64> = (0..7).map(|i| d[i * 5 + k]).collect();
+            assert_eq!(&cols[k * 7..(k + 1) * 7], &want[..], "node {k}");
+        }
+        // One node: the array itself.
+        assert_eq!(by_node(&d, 1), d);
+        // Two AR(1) forms in one pass are each the form alone, bit for bit, and the form is
+        // the quadratic it names.
+        let x = [0.5, -1.0, 2.0, 0.25];
+        let [a, b] = ar_quadratics(&x, [0.3, 0.9]);
+        assert_eq!(a.to_bits(), ar_quadratic(&x, 0.3).to_bits());
+        assert_eq!(b.to_bits(), ar_quadratic(&x, 0.9).to_bits());
+        let direct: f64 = (0..4)
+            .flat_map(|i| (0..4).map(move |j| (i, j)))
+            .map(|(i, j)| x[i] * x[j] * 0.3f64.powi((i as i32 - j as i32).abs()))
+            .sum();
+        assert!((a - direct).abs() < 1e-12, "{a} against {direct}");
+    }
+
+    #[test]
     fn white_fast_and_slow_parts_are_told_apart() {
         // White 1, fast AR(1) 0.5 with rho 0.6, slow AR(1) 2.0 with rho exp(-1/300).
         let mut rng = Rng::new(3, 1);
