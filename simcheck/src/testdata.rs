@@ -106,3 +106,15 @@ pub fn drifting() -> crate::data::Dataset {
         .collect();
     ds
 }
+
+/// Asserts that `a` and `b` have the same length and agree element by element to `rel`,
+/// relative to the larger of the two (and at least 1e-12): `what` names them in the message.
+pub fn assert_close(a: &[f64], b: &[f64], rel: f64, what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}");
+    for (x, y) in a.iter().zip(b) {
+        assert!(
+            (x - y).abs() <= rel * x.abs().max(y.abs()).max(1e-12),
+            "{what}: {a:?} against {b:?}"
+        );
+    }
+}

@@ -51,7 +51,7 @@ pub(super) fn fit_round(
 /// On the sums the second round continues the first's alternation (its fits and factors are
 /// the next iterations of the same sums, so the first round's last fit, which would go to the
 /// samples, is left out); elsewhere the rounds run one after the other. Either way the same
-/// numbers as two evaluations.
+/// fits and factors as the two rounds run in turn.
 pub(super) fn fit_rounds(
     ctx: &Context,
     cfg: &Config,
@@ -324,13 +324,7 @@ mod tests {
     use crate::effects::{Config, Thermal};
 
     fn close(a: &[f64], b: &[f64], what: &str) {
-        assert_eq!(a.len(), b.len(), "{what}");
-        for (x, y) in a.iter().zip(b) {
-            assert!(
-                (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1e-12),
-                "{what}: {a:?} against {b:?}"
-            );
-        }
+        crate::testdata::assert_close(a, b, 1e-9, what);
     }
 
     /// What a fold did before the two rounds: the factors re-read from a fit on the held-out

@@ -259,13 +259,7 @@ mod tests {
     }
 
     fn close(a: &[f64], b: &[f64], what: &str) {
-        for (x, y) in a.iter().zip(b) {
-            assert!(
-                (x - y).abs() <= 1e-8 * x.abs().max(y.abs()).max(1e-12),
-                "{what}: {a:?} against {b:?}"
-            );
-        }
-        assert_eq!(a.len(), b.len(), "{what}");
+        crate::testdata::assert_close(a, b, 1e-8, what);
     }
 
     #[test]
